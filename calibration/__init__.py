@@ -1,0 +1,1 @@
+"""Calibration maneuvers and fits that produce the versioned calibration file."""

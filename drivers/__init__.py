@@ -1,0 +1,1 @@
+"""Drivers: one folder per device, each a sans-I/O protocol core, an asyncio client and a twin."""

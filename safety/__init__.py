@@ -1,0 +1,1 @@
+"""Safety layer: what stands between the control core and the actuators and cannot be bypassed."""
