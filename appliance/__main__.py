@@ -1,0 +1,5 @@
+"""`python -m appliance` is `dbw`."""
+
+from appliance.cli import main
+
+main()

@@ -1,0 +1,169 @@
+"""Loading a vehicle profile from TOML and explaining what is wrong with it.
+
+A person editing a config on the vehicle needs one line per problem that names the field,
+what was given and what is allowed. Pydantic's own messages say "less than or equal to 20"
+but not which field family or unit; here we add the path in TOML notation and the
+allowed range read from the model itself, so the message can never disagree with the check.
+"""
+
+from __future__ import annotations
+
+import difflib
+import tomllib
+from dataclasses import dataclass
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import annotated_types
+from pydantic import BaseModel, ValidationError
+from pydantic.fields import FieldInfo
+
+from appliance.config.models import VehicleConfig
+
+BUILTIN_PROFILES = ("sim", "flatbed", "husky")
+
+
+@dataclass(frozen=True)
+class ConfigProblem:
+    """One thing wrong with a config file, ready to print."""
+
+    field: str
+    message: str
+
+    def __str__(self) -> str:
+        return f"{self.field}: {self.message}" if self.field else self.message
+
+
+class ConfigError(Exception):
+    """A config that cannot be used; carries every problem found, not just the first."""
+
+    def __init__(self, source: str, problems: list[ConfigProblem]) -> None:
+        self.source = source
+        self.problems = problems
+        super().__init__(self.render())
+
+    def render(self) -> str:
+        lines = [f"{self.source}: {len(self.problems)} problem(s)"]
+        lines += [f"  - {problem}" for problem in self.problems]
+        return "\n".join(lines)
+
+
+def load_config(name_or_path: str | Path | None = None) -> VehicleConfig:
+    """Load a built-in profile by name (``sim``, ``flatbed``, ``husky``) or a TOML file.
+
+    ``None`` means the built-in ``sim`` profile, so the daemon runs with no file at all.
+    """
+    if name_or_path is None:
+        name_or_path = "sim"
+    if isinstance(name_or_path, str) and name_or_path in BUILTIN_PROFILES:
+        text = (
+            resources.files("appliance.config")
+            .joinpath("profiles", f"{name_or_path}.toml")
+            .read_text(encoding="utf-8")
+        )
+        return parse_config(text, source=f"built-in profile {name_or_path!r}")
+    path = Path(name_or_path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise ConfigError(
+            str(path),
+            [
+                ConfigProblem(
+                    "",
+                    "no such file (built-in profiles are: " + ", ".join(BUILTIN_PROFILES) + ")",
+                )
+            ],
+        ) from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ConfigError(str(path), [ConfigProblem("", f"cannot read the file: {exc}")]) from None
+    return parse_config(text, source=str(path))
+
+
+def parse_config(text: str, source: str = "<config>") -> VehicleConfig:
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(source, [ConfigProblem("", f"not valid TOML: {exc}")]) from None
+    try:
+        return VehicleConfig.model_validate(data)
+    except ValidationError as exc:
+        raise ConfigError(source, explain(exc)) from None
+
+
+def explain(exc: ValidationError) -> list[ConfigProblem]:
+    problems = []
+    for error in exc.errors(include_url=False):
+        loc = tuple(error["loc"])
+        field = ".".join(str(part) for part in loc)
+        kind = error["type"]
+        if kind == "extra_forbidden":
+            problems.append(ConfigProblem(field, _unknown_field_message(loc)))
+            continue
+        message = error["msg"]
+        if message.startswith("Value error, "):
+            message = message.removeprefix("Value error, ")
+        info = _field_info(loc)
+        allowed = _allowed(info) if info is not None else ""
+        if kind != "missing" and "input" in error and not isinstance(error["input"], dict):
+            message += f" (got {error['input']!r})"
+        if allowed:
+            message += f"; allowed: {allowed}"
+        problems.append(ConfigProblem(field, message))
+    return problems
+
+
+def _walk(loc: tuple[Any, ...]) -> tuple[type[BaseModel] | None, FieldInfo | None]:
+    """Follow a validation error location through the models to the field it names."""
+    model: type[BaseModel] | None = VehicleConfig
+    info: FieldInfo | None = None
+    for part in loc:
+        if model is None or not isinstance(part, str) or part not in model.model_fields:
+            return model, None
+        info = model.model_fields[part]
+        annotation = info.annotation
+        model = (
+            annotation
+            if isinstance(annotation, type) and issubclass(annotation, BaseModel)
+            else None
+        )
+    return model, info
+
+
+def _field_info(loc: tuple[Any, ...]) -> FieldInfo | None:
+    return _walk(loc)[1]
+
+
+def _unknown_field_message(loc: tuple[Any, ...]) -> str:
+    parent, _ = _walk(loc[:-1])
+    known = sorted(parent.model_fields) if parent is not None else []
+    suggestion = difflib.get_close_matches(str(loc[-1]), known, n=1)
+    message = "unknown field"
+    if suggestion:
+        message += f"; did you mean {suggestion[0]!r}?"
+    elif known:
+        message += "; known fields here: " + ", ".join(known)
+    return message
+
+
+def _allowed(info: FieldInfo) -> str:
+    lower = upper = ""
+    for meta in info.metadata:
+        if isinstance(meta, annotated_types.Ge):
+            lower = f"{meta.ge} <= value"
+        elif isinstance(meta, annotated_types.Gt):
+            lower = f"{meta.gt} < value"
+        elif isinstance(meta, annotated_types.Le):
+            upper = f"value <= {meta.le}"
+        elif isinstance(meta, annotated_types.Lt):
+            upper = f"value < {meta.lt}"
+    if lower and upper:
+        return lower + upper.removeprefix("value")
+    if lower or upper:
+        return lower or upper
+    annotation = info.annotation
+    choices = getattr(annotation, "__members__", None)
+    if choices:
+        return ", ".join(repr(member.value) for member in choices.values())
+    return ""

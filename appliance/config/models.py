@@ -1,0 +1,247 @@
+"""The vehicle profile: one validated model of everything the daemon needs to know.
+
+Every quantity carries its unit in its name (``wheelbase_m``, ``max_steer_rate_deg_per_s``)
+so a TOML file reads unambiguously on the vehicle, where a wrong unit is a crash rather
+than a bug report. Bounds are physical plausibility limits, not tuning advice: they catch
+typos (a wheelbase of 350 instead of 3.5) before the vehicle moves. Models forbid unknown
+fields, because a misspelled key silently falling back to a default is exactly the kind
+of mistake that must not reach a nine-ton vehicle.
+"""
+
+from __future__ import annotations
+
+from enum import StrEnum
+from typing import Annotated, Self
+
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+
+class _Model(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True, validate_default=True)
+
+
+Port = Annotated[int, Field(ge=1, le=65535)]
+
+
+class VehicleKind(StrEnum):
+    """Steering layouts the guidance layer knows how to track."""
+
+    FLATBED = "flatbed"  # multi-wheel transporter: straight, crab, rear steer, turn-around
+    FOUR_WHEEL_COUNTER_STEER = "four_wheel_counter_steer"  # proportional 4WS (Husky)
+    FRONT_STEER = "front_steer"  # forklift-like, single steered axle
+
+
+class SensorMount(_Model):
+    """Pose of a sensor in the vehicle frame (x forward, y left, z up, origin at the rear axle)."""
+
+    x_m: float = Field(0.0, ge=-30.0, le=30.0)
+    y_m: float = Field(0.0, ge=-10.0, le=10.0)
+    z_m: float = Field(0.5, ge=-2.0, le=10.0)
+    yaw_deg: float = Field(0.0, ge=-180.0, le=180.0)
+
+
+class Geometry(_Model):
+    """Chassis geometry used by kinematics, pure pursuit and the simulated vehicle."""
+
+    wheelbase_m: float = Field(3.5, gt=0.5, le=30.0)
+    track_width_m: float = Field(2.2, gt=0.5, le=6.0)
+    length_m: float = Field(5.5, gt=0.5, le=40.0)
+    width_m: float = Field(2.5, gt=0.5, le=6.0)
+    # Rear-to-front steer ratio of proportional counter-steer (Stanley et al., eq. 1):
+    # phi_r = -k * phi_f. 0 means front steer only.
+    counter_steer_ratio_k: float = Field(1.0, ge=0.0, le=1.5)
+    # Pure pursuit tracks a point ahead of the vehicle centre (Stanley et al., Fig. 8).
+    anchor_point_forward_m: float = Field(1.5, ge=0.0, le=20.0)
+    # Sideslip gain G_ss = 1 / (1 + (v / V_char)^2) (Stanley et al.).
+    characteristic_speed_mps: float = Field(12.0, gt=0.5, le=60.0)
+    scanner_left_mount: SensorMount = SensorMount(x_m=4.5, y_m=1.1, yaw_deg=45.0)
+    scanner_right_mount: SensorMount = SensorMount(x_m=4.5, y_m=-1.1, yaw_deg=-45.0)
+
+
+class Limits(_Model):
+    """Actuation limits the safety layer enforces whatever the autopilot asks."""
+
+    max_steer_angle_deg: float = Field(30.0, gt=0.0, le=60.0)
+    max_steer_rate_deg_per_s: float = Field(20.0, gt=0.0, le=180.0)
+    max_speed_mps: float = Field(4.5, gt=0.0, le=20.0)
+    max_engage_speed_mps: float = Field(4.5, gt=0.0, le=20.0)
+    throttle_min_pct: float = Field(0.0, ge=0.0, le=100.0)
+    throttle_max_pct: float = Field(40.0, gt=0.0, le=100.0)
+    max_throttle_rate_pct_per_s: float = Field(50.0, gt=0.0, le=1000.0)
+    brake_min_pct: float = Field(0.0, ge=0.0, le=100.0)
+    brake_max_pct: float = Field(100.0, gt=0.0, le=100.0)
+
+    @model_validator(mode="after")
+    def _ranges_are_ordered(self) -> Self:
+        if self.throttle_min_pct >= self.throttle_max_pct:
+            raise ValueError(
+                "throttle_min_pct must be below throttle_max_pct "
+                f"(got {self.throttle_min_pct} >= {self.throttle_max_pct})"
+            )
+        if self.brake_min_pct >= self.brake_max_pct:
+            raise ValueError(
+                "brake_min_pct must be below brake_max_pct "
+                f"(got {self.brake_min_pct} >= {self.brake_max_pct})"
+            )
+        if self.max_engage_speed_mps > self.max_speed_mps:
+            raise ValueError(
+                "max_engage_speed_mps must not exceed max_speed_mps "
+                f"(got {self.max_engage_speed_mps} > {self.max_speed_mps})"
+            )
+        return self
+
+
+class Lms111Endpoint(_Model):
+    """One SICK LMS111 on Ethernet (CoLa-A on 2111 or CoLa-B on 2112 by default)."""
+
+    host: str = Field("127.0.0.1", min_length=1)
+    port: Port = 2111
+    scan_frequency_hz: Annotated[int, Field(ge=25, le=50)] = 50
+    angular_resolution_deg: float = Field(0.5, ge=0.25, le=0.5)
+
+    @model_validator(mode="after")
+    def _supported_modes(self) -> Self:
+        if self.scan_frequency_hz not in (25, 50):
+            raise ValueError(f"scan_frequency_hz must be 25 or 50 (got {self.scan_frequency_hz})")
+        if self.angular_resolution_deg not in (0.25, 0.5):
+            raise ValueError(
+                f"angular_resolution_deg must be 0.25 or 0.5 (got {self.angular_resolution_deg})"
+            )
+        return self
+
+
+class CanInterface(StrEnum):
+    SOCKETCAN = "socketcan"  # the vehicle, and vcan in HIL tests
+    VIRTUAL = "virtual"  # python-can's in-process bus: unit tests and the built-in sim
+
+
+class CanEndpoint(_Model):
+    """The link to the vehicle's PC104 lower-level controller."""
+
+    interface: CanInterface = CanInterface.VIRTUAL
+    channel: str = Field("dbw-sim", min_length=1)
+    bitrate_bps: Annotated[int, Field(ge=10_000, le=1_000_000)] = 500_000
+
+
+SIM_PORT_PREFIX = "sim://"
+
+
+class SerialEndpoint(_Model):
+    """One actuator board. ``sim://NAME`` selects the in-process twin on a pseudo-terminal."""
+
+    port: str = Field(min_length=1)
+    baudrate_bps: Annotated[int, Field(ge=1200, le=4_000_000)] = 115_200
+
+
+class Devices(_Model):
+    lms111_left: Lms111Endpoint = Lms111Endpoint(port=2111)
+    lms111_right: Lms111Endpoint = Lms111Endpoint(port=2112)
+    can: CanEndpoint = CanEndpoint()
+    steering_serial: SerialEndpoint = SerialEndpoint(port="sim://steering")
+    throttle_serial: SerialEndpoint = SerialEndpoint(port="sim://throttle")
+    brake_serial: SerialEndpoint = SerialEndpoint(port="sim://brake")
+    panel_serial: SerialEndpoint = SerialEndpoint(port="sim://panel")
+
+
+class Rates(_Model):
+    control_hz: float = Field(50.0, ge=10.0, le=200.0)
+    pc104_command_hz: float = Field(50.0, ge=10.0, le=200.0)
+    status_report_hz: float = Field(1.0, gt=0.0, le=10.0)
+
+
+class Staleness(_Model):
+    """Age limits per input: a critical input older than this is a fault within one cycle."""
+
+    scan_max_age_s: float = Field(0.1, gt=0.0, le=2.0)
+    pose_max_age_s: float = Field(0.1, gt=0.0, le=2.0)
+    pc104_status_max_age_s: float = Field(0.1, gt=0.0, le=2.0)
+    steering_pot_max_age_s: float = Field(0.05, gt=0.0, le=2.0)
+    actuator_board_max_age_s: float = Field(0.1, gt=0.0, le=2.0)
+    panel_max_age_s: float = Field(0.2, gt=0.0, le=2.0)
+
+
+class SafetyTimeouts(_Model):
+    """How the vehicle is brought to rest and how long each step may take."""
+
+    safe_stop_decel_mps2: float = Field(1.5, gt=0.0, le=8.0)
+    estop_decel_mps2: float = Field(4.0, gt=0.0, le=10.0)
+    # The PC104 and the boards stop on their own when commands stop for this long.
+    lower_layer_command_timeout_s: float = Field(0.1, gt=0.0, le=1.0)
+    # Shutdown must finish within 1 s in total; this is the budget for services to unwind.
+    shutdown_grace_s: float = Field(0.6, gt=0.0, le=0.9)
+
+
+class Supervision(_Model):
+    """Restart policy shared by every supervised service unless the service overrides it."""
+
+    restart_initial_backoff_s: float = Field(0.1, gt=0.0, le=10.0)
+    restart_backoff_factor: float = Field(2.0, ge=1.0, le=10.0)
+    restart_backoff_cap_s: float = Field(5.0, gt=0.0, le=300.0)
+    max_restarts: Annotated[int, Field(ge=0, le=1000)] = 5
+    # A service that has run this long without failing gets its restart budget back.
+    restart_budget_reset_after_s: float = Field(30.0, gt=0.0, le=3600.0)
+    control_heartbeat_deadline_s: float = Field(0.25, gt=0.0, le=5.0)
+    # Used when systemd does not provide WATCHDOG_USEC (a run from a terminal).
+    default_watchdog_interval_s: float = Field(2.0, gt=0.0, le=60.0)
+    cancel_timeout_s: float = Field(0.5, gt=0.0, le=10.0)
+
+    @model_validator(mode="after")
+    def _cap_not_below_initial(self) -> Self:
+        if self.restart_backoff_cap_s < self.restart_initial_backoff_s:
+            raise ValueError(
+                "restart_backoff_cap_s must not be below restart_initial_backoff_s "
+                f"(got {self.restart_backoff_cap_s} < {self.restart_initial_backoff_s})"
+            )
+        return self
+
+
+class Paths(_Model):
+    state_dir: str = Field("var/dbw", min_length=1)
+    calibration_file: str = Field("var/dbw/calibration.toml", min_length=1)
+
+
+class Simulation(_Model):
+    """The built-in simulated vehicle: its twins run in the daemon's own process."""
+
+    enabled: bool = True
+    world_step_hz: float = Field(100.0, ge=10.0, le=1000.0)
+
+
+class VehicleConfig(_Model):
+    """The whole configuration of one vehicle, as loaded from one TOML file."""
+
+    name: str = Field("sim", min_length=1, max_length=64)
+    kind: VehicleKind = VehicleKind.FOUR_WHEEL_COUNTER_STEER
+    geometry: Geometry = Geometry()
+    limits: Limits = Limits()
+    devices: Devices = Devices()
+    rates: Rates = Rates()
+    staleness: Staleness = Staleness()
+    safety: SafetyTimeouts = SafetyTimeouts()
+    supervision: Supervision = Supervision()
+    paths: Paths = Paths()
+    simulation: Simulation = Simulation(enabled=False)
+
+    @model_validator(mode="after")
+    def _cross_checks(self) -> Self:
+        if not self.simulation.enabled:
+            for field_name in ("steering_serial", "throttle_serial", "brake_serial", "panel_serial"):
+                endpoint: SerialEndpoint = getattr(self.devices, field_name)
+                if endpoint.port.startswith(SIM_PORT_PREFIX):
+                    raise ValueError(
+                        f"devices.{field_name}.port is {endpoint.port!r}, a simulated board, "
+                        "but simulation.enabled is false: set the real serial device "
+                        "(e.g. /dev/ttyUSB0) or enable the simulation"
+                    )
+        control_period_s = 1.0 / self.rates.control_hz
+        if self.supervision.control_heartbeat_deadline_s < 2 * control_period_s:
+            raise ValueError(
+                "supervision.control_heartbeat_deadline_s must be at least two control periods "
+                f"({2 * control_period_s:.3f} s at rates.control_hz={self.rates.control_hz})"
+            )
+        if self.staleness.pc104_status_max_age_s < control_period_s:
+            raise ValueError(
+                "staleness.pc104_status_max_age_s must be at least one control period "
+                f"({control_period_s:.3f} s)"
+            )
+        return self

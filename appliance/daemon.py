@@ -1,0 +1,300 @@
+"""The daemon: the supervisor, the systemd conversation, signals and the way out.
+
+Every way out of ``run`` passes through one ``finally`` that engages the safe-stop hook,
+whether the stop was asked for (SIGTERM, SIGINT, a bounded demo), a service crashed, or
+the daemon's own code failed. Shutdown is bounded: services get ``shutdown_grace_s`` to
+unwind; a task that ignores cancellation is abandoned (and the process exits hard) rather
+than allowed to hold the vehicle's software hostage. A second signal exits at once,
+after telling the actuators to go safe one more time.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import math
+import os
+import signal
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+from appliance.config import VehicleConfig
+from appliance.control_loop import ControlLoop, HoldSafeCore
+from appliance.logs import get_logger
+from appliance.supervisor import ServiceContext, ServiceSpec, ServiceState, Supervisor
+from appliance.systemd_notify import SystemdNotifier
+from safety.safe_stop import SafeCommand, SafeStop
+from safety.watchdog import RestartPolicy
+
+log = get_logger("daemon")
+
+EXIT_OK = 0
+EXIT_FAILURE = 1
+
+
+def restart_policy(config: VehicleConfig) -> RestartPolicy:
+    sup = config.supervision
+    return RestartPolicy(
+        initial_backoff_s=sup.restart_initial_backoff_s,
+        backoff_factor=sup.restart_backoff_factor,
+        backoff_cap_s=sup.restart_backoff_cap_s,
+        max_restarts=sup.max_restarts,
+        budget_reset_after_s=sup.restart_budget_reset_after_s,
+    )
+
+
+def safe_command(config: VehicleConfig) -> SafeCommand:
+    return SafeCommand(
+        throttle_pct=0.0,
+        brake_pct=config.limits.brake_max_pct,
+        decel_mps2=config.safety.safe_stop_decel_mps2,
+    )
+
+
+@dataclass(frozen=True)
+class RunResult:
+    exit_code: int
+    reason: str
+    # True when a task ignored cancellation: the caller must end the process with os._exit.
+    must_force_exit: bool = False
+
+
+class Daemon:
+    """Owns the supervisor and everything between it and the operating system."""
+
+    def __init__(
+        self,
+        config: VehicleConfig,
+        *,
+        extra_services: list[ServiceSpec] | None = None,
+        safe_stop: SafeStop | None = None,
+        notifier: SystemdNotifier | None = None,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        self.config = config
+        self.clock = clock
+        self.safe_stop = safe_stop if safe_stop is not None else SafeStop(safe_command(config))
+        self.notifier = notifier if notifier is not None else SystemdNotifier()
+        self.control = ControlLoop(HoldSafeCore(self.safe_stop.command), config.rates.control_hz)
+        policy = restart_policy(config)
+        specs = [
+            ServiceSpec(
+                name="control",
+                run=self.control.run,
+                critical=True,
+                restart=policy,
+                heartbeat_deadline_s=config.supervision.control_heartbeat_deadline_s,
+            ),
+            *(extra_services or []),
+            ServiceSpec(
+                name="status",
+                run=self._status_service,
+                critical=False,
+                restart=policy,
+            ),
+        ]
+        self.supervisor = Supervisor(
+            specs,
+            clock=clock,
+            cancel_timeout_s=config.supervision.cancel_timeout_s,
+            on_failure=self._on_service_failure,
+        )
+        self.watchdog_pings = 0
+        self._stop_requested: asyncio.Event | None = None
+        self._stop_reason = ""
+        self._signals_seen = 0
+        self._was_healthy = True
+
+    # ---- lifecycle ---------------------------------------------------------------
+    async def run(self, duration_s: float | None = None, handle_signals: bool = True) -> RunResult:
+        loop = asyncio.get_running_loop()
+        self._stop_requested = asyncio.Event()
+        if handle_signals:
+            for signum in (signal.SIGTERM, signal.SIGINT):
+                loop.add_signal_handler(signum, self._on_signal, signum)
+        log.info(
+            "daemon_starting",
+            vehicle=self.config.name,
+            kind=str(self.config.kind),
+            simulation=self.config.simulation.enabled,
+            services=list(self.supervisor.records),
+            systemd=self.notifier.enabled,
+            watchdog_interval_s=self.notifier.watchdog_interval_s,
+        )
+        self.notifier.status("starting services")
+        root = asyncio.ensure_future(self.supervisor.run())  # the one root task
+        if isinstance(root, asyncio.Task):
+            root.set_name("supervisor")
+        result = RunResult(EXIT_FAILURE, "daemon failed before its services ran")
+        try:
+            result = await self._wait_for_end(root, duration_s)
+        finally:
+            result = await self._shut_down(root, result)
+            if handle_signals:
+                for signum in (signal.SIGTERM, signal.SIGINT):
+                    loop.remove_signal_handler(signum)
+        return result
+
+    async def _wait_for_end(self, root: asyncio.Future[None], duration_s: float | None) -> RunResult:
+        assert self._stop_requested is not None
+        stop_wait = asyncio.ensure_future(self._stop_requested.wait())
+        try:
+            done, _ = await asyncio.wait(
+                {root, stop_wait},
+                timeout=duration_s,
+                return_when=asyncio.FIRST_COMPLETED,
+            )
+        finally:
+            stop_wait.cancel()
+        if root in done:
+            error = root.exception()
+            reason = f"services ended: {error!r}" if error else "every service ended"
+            log.critical("daemon_services_ended", reason=reason)
+            return RunResult(EXIT_FAILURE, reason)
+        if stop_wait in done:
+            return RunResult(EXIT_OK, self._stop_reason)
+        return RunResult(EXIT_OK, f"ran for the requested {duration_s} s")
+
+    async def _shut_down(self, root: asyncio.Future[None], result: RunResult) -> RunResult:
+        started_s = self.clock()
+        self.notifier.stopping()
+        self.notifier.status(f"stopping: {result.reason}")
+        log.info("daemon_stopping", reason=result.reason)
+        root.cancel()
+        grace_s = self.config.safety.shutdown_grace_s
+        done, _ = await asyncio.wait({root}, timeout=grace_s)
+        if root in done and not root.cancelled() and root.exception() is not None:
+            log.error("daemon_root_error", error=repr(root.exception()))
+        self.safe_stop.engage(f"shutdown: {result.reason}")
+        stuck = [
+            name
+            for name, record in self.supervisor.records.items()
+            if record.state not in (ServiceState.STOPPED, ServiceState.FAILED)
+        ]
+        if root not in done:
+            log.critical("daemon_services_did_not_stop", grace_s=grace_s, stuck=stuck)
+            result = RunResult(EXIT_FAILURE, result.reason + "; services did not stop", True)
+        log.info(
+            "daemon_stopped",
+            reason=result.reason,
+            exit_code=result.exit_code,
+            shutdown_s=round(self.clock() - started_s, 3),
+            restarts=sum(r.budget.total_restarts for r in self.supervisor.records.values()),
+            watchdog_pings=self.watchdog_pings,
+        )
+        return result
+
+    def request_stop(self, reason: str) -> None:
+        if self._stop_requested is not None and not self._stop_requested.is_set():
+            self._stop_reason = reason
+            self._stop_requested.set()
+
+    def _on_signal(self, signum: int) -> None:
+        self._signals_seen += 1
+        name = signal.Signals(signum).name
+        if self._signals_seen == 1:
+            log.info("signal_received", signal=name, action="stopping cleanly")
+            self.request_stop(name)
+            return
+        log.critical("signal_received", signal=name, action="forced exit")
+        self.safe_stop.engage(f"forced exit on second signal {name}")
+        os._exit(128 + signum)
+
+    # ---- supervision hooks -------------------------------------------------------
+    def _on_service_failure(self, spec: ServiceSpec, reason: str) -> None:
+        if spec.critical:
+            self.safe_stop.engage(f"critical service {spec.name} failed: {reason}")
+
+    async def _status_service(self, ctx: ServiceContext) -> None:
+        """READY once critical services are up; then WATCHDOG, STATUS and heartbeat logs."""
+        await self.supervisor.wait_critical_up()
+        self.notifier.ready()
+        log.info("daemon_ready", services=self._service_summary())
+        ping_period_s = (
+            self.notifier.watchdog_interval_s / 2
+            if self.notifier.watchdog_interval_s is not None
+            else None
+        )
+        report_period_s = 1.0 / self.config.rates.status_report_hz
+        tick_s = min(ping_period_s or math.inf, report_period_s, 0.1)
+        last_ping_s = -math.inf
+        last_report_s = self.clock()
+        while True:
+            now_s = self.clock()
+            healthy = self.supervisor.critical_healthy(now_s)
+            if healthy != self._was_healthy:
+                self._was_healthy = healthy
+                (log.info if healthy else log.error)(
+                    "watchdog_pings_resumed" if healthy else "watchdog_pings_withheld",
+                    services=self._service_summary(),
+                )
+            if ping_period_s is not None and healthy and now_s - last_ping_s >= ping_period_s:
+                self.notifier.watchdog()
+                self.watchdog_pings += 1
+                last_ping_s = now_s
+            self.notifier.status(self.status_line())
+            if now_s - last_report_s >= report_period_s:
+                last_report_s = now_s
+                jitter = self.control.ticker.stats.report()
+                log.info(
+                    "heartbeats",
+                    services=self._service_summary(),
+                    control_cycles=jitter.cycles,
+                    control_overruns=jitter.overruns,
+                    control_jitter_p99_ms=round(jitter.jitter_p99_ms, 3),
+                    watchdog_pings=self.watchdog_pings,
+                )
+            ctx.beat()
+            await asyncio.sleep(tick_s)
+
+    def _service_summary(self) -> dict[str, str]:
+        summary = {}
+        for status in self.supervisor.snapshot():
+            age = status.heartbeat_age_s
+            text = str(status.state)
+            if math.isfinite(age):
+                text += f" beat {age * 1e3:.0f} ms ago"
+            if status.restarts:
+                text += f", {status.restarts} restart(s)"
+            summary[status.name] = text
+        return summary
+
+    def status_line(self) -> str:
+        """One line for `systemctl status`: what the daemon is doing, in words."""
+        latched = self.supervisor.latched_error
+        if latched is not None:
+            return (
+                f"ERROR (latched): critical service '{latched.service}' failed: {latched.reason}; "
+                "vehicle held safe, restart the service to recover"
+            )
+        states = self.supervisor.snapshot()
+        unhealthy = [s.name for s in states if s.critical and s.state is not ServiceState.RUNNING]
+        restarts = sum(s.restarts for s in states)
+        if unhealthy:
+            head = "DEGRADED: restarting " + ", ".join(unhealthy)
+        else:
+            head = "running, holding safe (no autopilot engaged)"
+        return f"{head}; {len(states)} services, {restarts} restart(s)"
+
+
+def run_daemon(config: VehicleConfig, duration_s: float | None = None) -> int:
+    """Entry point for `dbw run`: run until stopped, exit hard if a task refused to stop.
+
+    ``asyncio.run`` would wait forever for a task that ignores cancellation, so the hard
+    exit happens inside the loop, after the safe-stop hook has already run.
+    """
+
+    async def main() -> int:
+        current = asyncio.current_task()
+        if current is not None:
+            current.set_name("daemon")
+        result = await Daemon(config).run(duration_s=duration_s)
+        if result.must_force_exit:
+            with contextlib.suppress(Exception):
+                sys.stdout.flush()
+            os._exit(result.exit_code)
+        return result.exit_code
+
+    return asyncio.run(main())

@@ -1,0 +1,72 @@
+"""Structured logging: JSON lines for the journal, a readable console for a person.
+
+Every event carries the asyncio task that emitted it and a monotonic timestamp, because
+on a vehicle the questions are "which service said this" and "how long after the fault
+did the brake command go out" — and the wall clock can jump (NTP, GPS time) while the
+monotonic clock cannot.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import sys
+import time
+from typing import Any, TextIO
+
+import structlog
+from structlog.typing import EventDict, WrappedLogger
+
+LEVELS = ("debug", "info", "warning", "error", "critical")
+
+
+def _add_task_and_monotonic(_: WrappedLogger, __: str, event_dict: EventDict) -> EventDict:
+    event_dict.setdefault("mono_s", round(time.monotonic(), 6))
+    if "task" not in event_dict:
+        try:
+            task = asyncio.current_task()
+        except RuntimeError:
+            task = None
+        event_dict["task"] = task.get_name() if task is not None else "main"
+    return event_dict
+
+
+def configure_logging(
+    level: str = "info", *, stream: TextIO | None = None, json: bool | None = None
+) -> None:
+    """Configure structlog once for the process.
+
+    ``json=None`` chooses by whether ``stream`` is a terminal: journald (and any pipe) gets
+    one JSON object per line; a person at a terminal gets aligned, coloured text.
+    """
+    if level not in LEVELS:
+        raise ValueError(f"log level must be one of {', '.join(LEVELS)} (got {level!r})")
+    out = stream if stream is not None else sys.stdout
+    if json is None:
+        json = not out.isatty()
+    renderer: Any = (
+        structlog.processors.JSONRenderer(sort_keys=False)
+        if json
+        else structlog.dev.ConsoleRenderer(colors=out.isatty())
+    )
+    structlog.configure(
+        processors=[
+            structlog.contextvars.merge_contextvars,
+            structlog.processors.add_log_level,
+            _add_task_and_monotonic,
+            structlog.processors.TimeStamper(fmt="iso", utc=True, key="ts"),
+            structlog.processors.StackInfoRenderer(),
+            structlog.processors.format_exc_info,
+            renderer,
+        ],
+        wrapper_class=structlog.make_filtering_bound_logger(
+            logging.getLevelNamesMapping()[level.upper()]
+        ),
+        logger_factory=structlog.PrintLoggerFactory(file=out),
+        cache_logger_on_first_use=False,
+    )
+
+
+def get_logger(name: str) -> structlog.typing.FilteringBoundLogger:
+    logger: structlog.typing.FilteringBoundLogger = structlog.get_logger(component=name)
+    return logger

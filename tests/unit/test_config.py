@@ -1,0 +1,153 @@
+"""Config: the shipped profiles load, and bad files are explained field by field."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from appliance.config import BUILTIN_PROFILES, ConfigError, VehicleConfig, load_config, parse_config
+from appliance.config.models import CanInterface, VehicleKind
+
+
+@pytest.mark.parametrize("name", BUILTIN_PROFILES)
+def test_builtin_profiles_load(name: str) -> None:
+    config = load_config(name)
+    assert config.name == name
+
+
+def test_default_is_the_simulated_vehicle() -> None:
+    config = load_config(None)
+    assert config.simulation.enabled
+    assert config.devices.can.interface is CanInterface.VIRTUAL
+
+
+def test_seed_vehicles_talk_to_real_hardware() -> None:
+    husky = load_config("husky")
+    flatbed = load_config("flatbed")
+    assert husky.kind is VehicleKind.FOUR_WHEEL_COUNTER_STEER
+    assert husky.geometry.counter_steer_ratio_k == pytest.approx(0.63)
+    assert husky.limits.max_speed_mps == pytest.approx(4.47)  # 10 mph
+    assert flatbed.kind is VehicleKind.FLATBED
+    for config in (husky, flatbed):
+        assert not config.simulation.enabled
+        assert config.devices.can.interface is CanInterface.SOCKETCAN
+        assert config.devices.steering_serial.port.startswith("/dev/")
+
+
+def problems_of(text: str) -> dict[str, str]:
+    with pytest.raises(ConfigError) as caught:
+        parse_config(text, "test.toml")
+    return {p.field: p.message for p in caught.value.problems}
+
+
+def test_every_problem_is_reported_with_field_and_allowed_range() -> None:
+    problems = problems_of(
+        """
+        [limits]
+        max_speed_mps = 35
+        [devices.can]
+        interface = "udp"
+        [rates]
+        control_hz = 500
+        """
+    )
+    assert set(problems) == {"limits.max_speed_mps", "devices.can.interface", "rates.control_hz"}
+    assert "got 35" in problems["limits.max_speed_mps"]
+    assert "0.0 < value <= 20.0" in problems["limits.max_speed_mps"]
+    assert "'socketcan', 'virtual'" in problems["devices.can.interface"]
+    assert "10.0 <= value <= 200.0" in problems["rates.control_hz"]
+
+
+def test_misspelled_field_is_named_with_a_suggestion() -> None:
+    problems = problems_of("[limits]\nmax_sped_mps = 3\n")
+    assert "did you mean 'max_speed_mps'" in problems["limits.max_sped_mps"]
+
+
+def test_cross_field_rules() -> None:
+    problems = problems_of(
+        "[simulation]\nenabled = true\n[limits]\nthrottle_min_pct = 50\nthrottle_max_pct = 40\n"
+    )
+    assert any("throttle_min_pct must be below throttle_max_pct" in m for m in problems.values())
+
+
+def test_simulated_boards_need_the_simulation() -> None:
+    problems = problems_of('name = "x"\n')
+    assert any("sim://steering" in m and "simulation.enabled" in m for m in problems.values())
+
+
+def test_toml_syntax_error_is_one_clear_problem() -> None:
+    problems = problems_of("[limits\nmax_speed_mps = 3\n")
+    assert len(problems) == 1
+    assert "not valid TOML" in next(iter(problems.values()))
+
+
+def test_missing_file() -> None:
+    with pytest.raises(ConfigError, match="no such file"):
+        load_config("/nonexistent/vehicle.toml")
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.dictionaries(st.text(max_size=8), st.one_of(st.integers(), st.text(max_size=5), st.floats(allow_nan=True)), max_size=5))
+def test_any_table_either_loads_or_raises_config_error(table: dict[str, object]) -> None:
+    import tomllib
+
+    lines = "\n".join(f"{k!r} = {v!r}" for k, v in table.items())
+    try:
+        tomllib.loads(f"[limits]\n{lines}")
+    except tomllib.TOMLDecodeError:
+        pass
+    try:
+        result = parse_config(f"[simulation]\nenabled = true\n[limits]\n{lines}")
+    except ConfigError as exc:
+        assert exc.problems
+    else:
+        assert isinstance(result, VehicleConfig)
+
+
+def run_cli(*args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "appliance", *args],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=False,
+    )
+
+
+def test_cli_config_check_bad_file_exits_2_without_traceback(tmp_path: Path) -> None:
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[limits]\nmax_speed_mps = -1\nwheelbase = 3\n")
+    result = run_cli("config", "check", str(bad))
+    assert result.returncode == 2
+    assert "Traceback" not in result.stderr
+    assert "limits.max_speed_mps" in result.stderr
+    assert "limits.wheelbase: unknown field" in result.stderr
+
+
+def test_cli_config_check_good_file(tmp_path: Path) -> None:
+    good = tmp_path / "good.toml"
+    good.write_text('name = "bench"\n[simulation]\nenabled = true\n')
+    result = run_cli("config", "check", str(good))
+    assert result.returncode == 0, result.stderr
+    assert "OK" in result.stdout
+
+
+def test_cli_config_show_roundtrips(tmp_path: Path) -> None:
+    result = run_cli("config", "show", "husky")
+    assert result.returncode == 0, result.stderr
+    shown = tmp_path / "shown.toml"
+    shown.write_text(result.stdout)
+    assert load_config(shown) == load_config("husky")
+
+
+def test_cli_version() -> None:
+    from appliance import __version__
+
+    result = run_cli("--version")
+    assert result.returncode == 0
+    assert __version__ in result.stdout
