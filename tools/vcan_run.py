@@ -6,8 +6,9 @@ machines run kernels without CAN (socket(AF_CAN) fails with errno 97). When the 
 can do vcan, pytest runs natively. Otherwise this boots Debian's user-mode Linux
 kernel (``linux.uml``, an ordinary process with CAN and vcan modules) with the host's
 root file system mounted through hostfs, so the guest runs this very checkout and
-virtualenv; the test output and exit status come back through files on the host.
-See docs in /work/shared/notes/vcan-without-kernel-support.md (same recipe).
+virtualenv; the test output and exit status come back through files on the host
+(the guest's own exit status says nothing about the tests). The recipe is the one in
+/work/shared/notes/vcan-without-kernel-support.md.
 
 Usage: tools/vcan_run.py [--mode auto|native|uml] [--timeout-s N] [pytest args...]
 Unknown arguments (or everything after ``--``) go to pytest. ``-m vcan`` is added
@@ -130,7 +131,7 @@ export PATH={GUEST_PATH}
 mount -t proc proc /proc
 mount -t sysfs sysfs /sys
 mkdir -p /dev/shm && mount -t tmpfs -o mode=1777 tmpfs /dev/shm
-mount -t tmpfs -o mode=1777 tmpfs {q(str(tmp_dir))}
+mount -t tmpfs -o mode=1777 tmpfs {q(str(tmp_dir))}  # TMPDIR: guest-only, AF_UNIX-safe
 {insmods}
 ip link set lo up
 ip link add dev vcan0 type vcan && ip link set up vcan0
@@ -174,7 +175,11 @@ def run_uml(cmd: list[str], timeout_s: float, mem: str) -> int:
         need = [UML_KERNEL, *missing]
         print(f"vcan_run: no native vcan, and {need} missing: {APT_HINT}", file=sys.stderr)
         return EXIT_RUNNER_FAILURE
-    version = uml_version()
+    try:
+        version = uml_version()
+    except (OSError, RuntimeError, subprocess.SubprocessError) as exc:
+        print(f"vcan_run: cannot use {UML_KERNEL}: {exc}", file=sys.stderr)
+        return EXIT_RUNNER_FAILURE
     print(f"vcan: user-mode Linux {version}", flush=True)
     with tempfile.TemporaryDirectory(prefix="vcan-uml-") as tmp:
         work = Path(tmp)
@@ -201,13 +206,15 @@ def run_uml(cmd: list[str], timeout_s: float, mem: str) -> int:
             )
         deadline = time.monotonic() + timeout_s
         offset = 0
-        while proc.poll() is None and time.monotonic() < deadline:
-            time.sleep(0.2)
-            offset = stream(work / "pytest.out", offset)
-        timed_out = proc.poll() is None
-        if timed_out:
-            os.killpg(proc.pid, signal.SIGKILL)  # UML's helper processes share the group
-        proc.wait()
+        try:
+            while proc.poll() is None and time.monotonic() < deadline:
+                time.sleep(0.2)
+                offset = stream(work / "pytest.out", offset)
+            timed_out = proc.poll() is None
+        finally:  # on timeout and on Ctrl-C too: UML runs in its own session
+            if proc.poll() is None:
+                os.killpg(proc.pid, signal.SIGKILL)  # its helper processes share the group
+            proc.wait()
         stream(work / "pytest.out", offset)
         setup = read_text(work / "setup.log")
         if setup.strip():
@@ -232,7 +239,8 @@ def main(argv: list[str] | None = None) -> int:
     ours = argv[: argv.index("--")] if "--" in argv else argv
     parser = argparse.ArgumentParser(
         description=__doc__.split("\n\n")[0] if __doc__ else None,
-        epilog=f"Other arguments go to pytest (default: {' '.join(DEFAULT_PYTEST_ARGS)}).",
+        epilog=f"Other arguments, and all after --, go to pytest (default: "
+        f"{' '.join(DEFAULT_PYTEST_ARGS)}); -m vcan is added unless a -m is given.",
         allow_abbrev=False,
     )
     parser.add_argument(
@@ -255,4 +263,8 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    try:
+        sys.exit(main())
+    except KeyboardInterrupt:  # run_uml has already killed the guest
+        print("vcan_run: interrupted", file=sys.stderr)
+        sys.exit(130)
