@@ -46,6 +46,21 @@ class ServiceExited(Exception):
     """A daemon service returned although nobody asked it to stop."""
 
 
+async def _cancel_and_join(tasks: set[asyncio.Future[None]]) -> None:
+    """Cancel tasks and wait until every one has ended, even if we are cancelled meanwhile."""
+    stop_requested = False
+    while True:
+        for task in tasks:
+            task.cancel()
+        try:
+            await asyncio.wait(tasks)
+            break
+        except asyncio.CancelledError:
+            stop_requested = True
+    if stop_requested:
+        raise asyncio.CancelledError
+
+
 class ServiceContext:
     """What a running service gets from its supervisor."""
 
@@ -196,29 +211,38 @@ class Supervisor:
             raise
 
     async def _run_once(self, record: ServiceRecord) -> str:
-        """Run the service once; return why it ended (it always ends in failure here)."""
-        ctx = ServiceContext(record, self._clock)
-        try:
-            async with asyncio.TaskGroup() as group:
-                group.create_task(self._call(record, ctx), name=record.spec.name)
-                if record.spec.heartbeat_deadline_s is not None:
-                    group.create_task(
-                        self._watch_heartbeat(record), name=f"{record.spec.name}:watchdog"
-                    )
-        except ExceptionGroup as group:
-            return self._explain(record, group)
-        return "returned unexpectedly"
+        """Run the service once beside its heartbeat watcher; return why it ended.
 
-    def _explain(self, record: ServiceRecord, group: ExceptionGroup[Exception]) -> str:
-        missed, rest = group.split(HeartbeatMissed)
-        if missed is not None:
-            return str(missed.exceptions[0])
-        exited, crashed = group.split(ServiceExited)
-        if crashed is None:
-            return "returned unexpectedly"
-        error = crashed.exceptions[0]
-        while isinstance(error, ExceptionGroup):
-            error = error.exceptions[0]
+        Both tasks belong to this call: whatever ends first, the ``finally`` cancels the
+        other and waits for both, so nothing outlives the run. (An inner TaskGroup would
+        do the same, but on Python 3.11 it can swallow a stop request that arrives while
+        a child is failing.) A service that ignores cancellation keeps us waiting here,
+        in state HUNG, which is exactly what the systemd watchdog must see.
+        """
+        ctx = ServiceContext(record, self._clock)
+        service = asyncio.ensure_future(self._call(record, ctx))
+        if isinstance(service, asyncio.Task):
+            service.set_name(record.spec.name)
+        tasks: set[asyncio.Future[None]] = {service}
+        if record.spec.heartbeat_deadline_s is not None:
+            watcher = asyncio.ensure_future(self._watch_heartbeat(record))
+            tasks.add(watcher)
+        try:
+            await asyncio.wait(tasks, return_when=asyncio.FIRST_COMPLETED)
+        finally:
+            await _cancel_and_join(tasks)
+        errors = [
+            task.exception() for task in tasks if not task.cancelled() and task.exception()
+        ]
+        for error in errors:
+            if isinstance(error, HeartbeatMissed):
+                return str(error)
+        for error in errors:
+            if isinstance(error, ServiceExited):
+                return "returned unexpectedly"
+        if not errors:
+            return "ended without an error"
+        error = errors[0]
         log.error(
             "service_crashed",
             service=record.spec.name,

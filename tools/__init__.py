@@ -1,0 +1,1 @@
+"""Developer tools: the vcan runner, the fake systemd notify socket, simulator launchers."""
