@@ -124,9 +124,8 @@ class Daemon:
             watchdog_interval_s=self.notifier.watchdog_interval_s,
         )
         self.notifier.status("starting services")
-        root = asyncio.ensure_future(self.supervisor.run())  # the one root task
-        if isinstance(root, asyncio.Task):
-            root.set_name("supervisor")
+        # The one root task: every service lives below it, in the supervisor's task group.
+        root: asyncio.Future[object] = asyncio.create_task(self.supervisor.run(), name="supervisor")
         result = RunResult(EXIT_FAILURE, "daemon failed before its services ran")
         try:
             result = await self._wait_for_end(root, duration_s)
@@ -137,12 +136,15 @@ class Daemon:
                     loop.remove_signal_handler(signum)
         return result
 
-    async def _wait_for_end(self, root: asyncio.Future[None], duration_s: float | None) -> RunResult:
+    async def _wait_for_end(
+        self, root: asyncio.Future[object], duration_s: float | None
+    ) -> RunResult:
         assert self._stop_requested is not None
-        stop_wait = asyncio.ensure_future(self._stop_requested.wait())
+        stop_wait: asyncio.Future[object] = asyncio.ensure_future(self._stop_requested.wait())
+        waited: set[asyncio.Future[object]] = {root, stop_wait}
         try:
             done, _ = await asyncio.wait(
-                {root, stop_wait},
+                waited,
                 timeout=duration_s,
                 return_when=asyncio.FIRST_COMPLETED,
             )
@@ -157,7 +159,7 @@ class Daemon:
             return RunResult(EXIT_OK, self._stop_reason)
         return RunResult(EXIT_OK, f"ran for the requested {duration_s} s")
 
-    async def _shut_down(self, root: asyncio.Future[None], result: RunResult) -> RunResult:
+    async def _shut_down(self, root: asyncio.Future[object], result: RunResult) -> RunResult:
         started_s = self.clock()
         self.notifier.stopping()
         self.notifier.status(f"stopping: {result.reason}")

@@ -16,6 +16,7 @@ so the whole process is restarted (it then comes up at best READY, never engaged
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import time
 from collections.abc import Awaitable, Callable
 from dataclasses import dataclass, field
@@ -57,6 +58,9 @@ async def _cancel_and_join(tasks: set[asyncio.Future[None]]) -> None:
             break
         except asyncio.CancelledError:
             stop_requested = True
+    for task in tasks:  # mark every outcome as seen; _run_once reads the ones it needs
+        if not task.cancelled():
+            task.exception()
     if stop_requested:
         raise asyncio.CancelledError
 
@@ -220,20 +224,20 @@ class Supervisor:
         in state HUNG, which is exactly what the systemd watchdog must see.
         """
         ctx = ServiceContext(record, self._clock)
-        service = asyncio.ensure_future(self._call(record, ctx))
-        if isinstance(service, asyncio.Task):
-            service.set_name(record.spec.name)
-        tasks: set[asyncio.Future[None]] = {service}
+        tasks: set[asyncio.Future[None]] = {
+            asyncio.create_task(self._call(record, ctx), name=record.spec.name)
+        }
         if record.spec.heartbeat_deadline_s is not None:
-            watcher = asyncio.ensure_future(self._watch_heartbeat(record))
-            tasks.add(watcher)
+            tasks.add(
+                asyncio.create_task(
+                    self._watch_heartbeat(record), name=f"{record.spec.name}:watchdog"
+                )
+            )
         try:
             await asyncio.wait(tasks, return_when=asyncio.FIRST_COMPLETED)
         finally:
             await _cancel_and_join(tasks)
-        errors = [
-            task.exception() for task in tasks if not task.cancelled() and task.exception()
-        ]
+        errors = [task.exception() for task in tasks if not task.cancelled() and task.exception()]
         for error in errors:
             if isinstance(error, HeartbeatMissed):
                 return str(error)
@@ -258,13 +262,13 @@ class Supervisor:
     async def _watch_heartbeat(self, record: ServiceRecord) -> None:
         spec = record.spec
         assert spec.heartbeat_deadline_s is not None
-        grace_s = spec.startup_grace_s if spec.startup_grace_s is not None else spec.heartbeat_deadline_s
+        grace_s = (
+            spec.startup_grace_s if spec.startup_grace_s is not None else spec.heartbeat_deadline_s
+        )
         while True:
             last_s = record.heartbeat.last_beat_s
             expires_s = (
-                record.started_s + grace_s
-                if last_s is None
-                else last_s + spec.heartbeat_deadline_s
+                record.started_s + grace_s if last_s is None else last_s + spec.heartbeat_deadline_s
             )
             now_s = self._clock()
             if now_s > expires_s:
@@ -279,9 +283,9 @@ class Supervisor:
                 )
                 self._warn_if_stuck(record)
                 what = "no first heartbeat" if last_s is None else "heartbeat missed"
+                silent_s = now_s - (record.started_s if last_s is None else last_s)
                 raise HeartbeatMissed(
-                    f"{what} for {now_s - (last_s if last_s is not None else record.started_s):.3f} s "
-                    f"(deadline {spec.heartbeat_deadline_s} s)"
+                    f"{what} for {silent_s:.3f} s (deadline {spec.heartbeat_deadline_s} s)"
                 )
             await asyncio.sleep(max(expires_s - now_s, 0.0) + 1e-4)
 
@@ -297,7 +301,9 @@ class Supervisor:
                     service=record.spec.name,
                     critical=record.spec.critical,
                     cancel_timeout_s=self._cancel_timeout_s,
-                    consequence="systemd watchdog pings stop" if record.spec.critical else "degraded",
+                    consequence="systemd watchdog pings stop"
+                    if record.spec.critical
+                    else "degraded",
                 )
 
         loop.call_later(self._cancel_timeout_s, check)
@@ -336,10 +342,8 @@ class Supervisor:
         self._critical_up.set()
 
     async def _wait_changed_or(self, timeout_s: float) -> None:
-        try:
+        with contextlib.suppress(TimeoutError):
             await asyncio.wait_for(self._changed.wait(), timeout_s)
-        except TimeoutError:
-            pass
 
     # ---- health ------------------------------------------------------------------
     def all_critical_up(self) -> bool:

@@ -43,7 +43,10 @@ class SystemdNotifier:
 
         name, _, value = line.partition("=")
         notification = Notification[name]
-        result = notify(notification, None if notification.value.constant is not None else value)
+        if notification.value.constant is not None:
+            result = notify(notification)
+        else:
+            result = notify(notification, value)
         if isinstance(result, Exception):
             log.warning("sd_notify_failed", line=line, error=str(result))
 

@@ -59,9 +59,7 @@ class RateStats:
 class FixedRateTicker:
     """Await ``tick()`` once per period; it returns the actual (monotonic) wake-up time."""
 
-    def __init__(
-        self, period_s: float, clock: Callable[[], float] = time.monotonic
-    ) -> None:
+    def __init__(self, period_s: float, clock: Callable[[], float] = time.monotonic) -> None:
         if not period_s > 0:
             raise ValueError(f"period_s must be positive (got {period_s})")
         self.period_s = period_s

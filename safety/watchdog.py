@@ -59,7 +59,9 @@ class RestartPolicy:
         if self.initial_backoff_s <= 0 or self.backoff_cap_s < self.initial_backoff_s:
             raise ValueError("need 0 < initial_backoff_s <= backoff_cap_s")
         if self.backoff_factor < 1 or self.max_restarts < 0 or self.budget_reset_after_s <= 0:
-            raise ValueError("need backoff_factor >= 1, max_restarts >= 0, budget_reset_after_s > 0")
+            raise ValueError(
+                "need backoff_factor >= 1, max_restarts >= 0, budget_reset_after_s > 0"
+            )
 
 
 class RestartBudget:

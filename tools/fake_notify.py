@@ -47,7 +47,9 @@ class FakeNotifySocket:
                 for line in data.decode("utf-8", "replace").splitlines():
                     self._messages.append(Notification(now_s, line))
 
-    def environment(self, watchdog_s: float | None = None, pid: int | None = None) -> dict[str, str]:
+    def environment(
+        self, watchdog_s: float | None = None, pid: int | None = None
+    ) -> dict[str, str]:
         env = {"NOTIFY_SOCKET": str(self.path)}
         if watchdog_s is not None:
             env["WATCHDOG_USEC"] = str(int(watchdog_s * 1e6))

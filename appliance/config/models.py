@@ -181,8 +181,6 @@ class Supervision(_Model):
     # A service that has run this long without failing gets its restart budget back.
     restart_budget_reset_after_s: float = Field(30.0, gt=0.0, le=3600.0)
     control_heartbeat_deadline_s: float = Field(0.25, gt=0.0, le=5.0)
-    # Used when systemd does not provide WATCHDOG_USEC (a run from a terminal).
-    default_watchdog_interval_s: float = Field(2.0, gt=0.0, le=60.0)
     cancel_timeout_s: float = Field(0.5, gt=0.0, le=10.0)
 
     @model_validator(mode="after")
@@ -225,7 +223,12 @@ class VehicleConfig(_Model):
     @model_validator(mode="after")
     def _cross_checks(self) -> Self:
         if not self.simulation.enabled:
-            for field_name in ("steering_serial", "throttle_serial", "brake_serial", "panel_serial"):
+            for field_name in (
+                "steering_serial",
+                "throttle_serial",
+                "brake_serial",
+                "panel_serial",
+            ):
                 endpoint: SerialEndpoint = getattr(self.devices, field_name)
                 if endpoint.port.startswith(SIM_PORT_PREFIX):
                     raise ValueError(

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import itertools
 import json
 import os
 import signal
@@ -47,7 +48,9 @@ def make_daemon(
     monkeypatch.delenv("WATCHDOG_PID", raising=False)
     config = config or load_config("sim")
     target = RecordingTarget()
-    daemon = Daemon(config, extra_services=extra, safe_stop=SafeStop(safe_command(config), [target]))
+    daemon = Daemon(
+        config, extra_services=extra, safe_stop=SafeStop(safe_command(config), [target])
+    )
     return daemon, target
 
 
@@ -92,7 +95,7 @@ async def test_ready_watchdog_status_and_stopping(
     pings = [m for m in notify_socket.lines("WATCHDOG=1")]
     assert 3 <= len(pings) <= 8, lines  # every WATCHDOG_S / 2 for ~1.2 s
     assert all(lines.index("WATCHDOG=1") > ready_index for _ in pings)
-    gaps = [b.at_s - a.at_s for a, b in zip(pings, pings[1:], strict=False)]
+    gaps = [b.at_s - a.at_s for a, b in itertools.pairwise(pings)]
     assert max(gaps) < WATCHDOG_S  # never close to letting systemd fire
     assert any(line.startswith("STATUS=running") for line in lines)
     stopping = notify_socket.wait_for("STOPPING=1", timeout_s=1.0)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import itertools
 from collections.abc import AsyncIterator, Awaitable, Callable
 
 import pytest
@@ -74,7 +75,7 @@ async def test_crashing_service_is_restarted_with_backoff_and_logged() -> None:
     with capture_logs() as logs:
         async with running(sup):
             await wait_until(lambda: len(starts) >= 3 and sup.critical_healthy())
-    gaps = [b - a for a, b in zip(starts, starts[1:], strict=False)]
+    gaps = [b - a for a, b in itertools.pairwise(starts)]
     assert gaps[0] >= 0.02 * 0.9 and gaps[1] >= 0.04 * 0.9  # exponential backoff
     assert failures == ["crashed: RuntimeError: boom 1", "crashed: RuntimeError: boom 2"]
     restarts = [e for e in logs if e["event"] == "service_restarting"]

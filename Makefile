@@ -1,0 +1,61 @@
+# dbw-applique: the two commands are `make demo` and `make test`; both set up what they need.
+SHELL := /bin/bash
+PYTHON ?= python3
+VENV := .venv
+BIN := $(VENV)/bin
+STAMP := $(VENV)/.installed
+DEMO_SECONDS ?= 10
+# Debian packages the tests need: user-mode Linux (+kmod, can-utils, iproute2) for the vcan
+# HIL tests, systemd for `systemd-analyze verify`.
+TEST_DEBS := user-mode-linux kmod can-utils iproute2 systemd
+SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
+
+.PHONY: demo test venv debian-deps lint typecheck unit hil bench clean
+
+demo: venv
+	@echo "== dbw demo: the daemon on the built-in simulated vehicle for $(DEMO_SECONDS) s =="
+	$(BIN)/dbw --log-format console run --config sim --duration-s $(DEMO_SECONDS)
+	@echo "== demo finished: services came up, heartbeats were reported, the daemon stopped cleanly =="
+
+test: debian-deps venv lint typecheck unit hil
+
+venv: $(STAMP)
+
+$(STAMP): pyproject.toml
+	@$(PYTHON) -c 'import sys; sys.exit(0 if sys.version_info >= (3, 11) else "dbw-applique needs Python >= 3.11")'
+	@$(PYTHON) -m venv --help >/dev/null 2>&1 || { \
+	  echo "installing python3-venv"; $(SUDO) apt-get update -q && \
+	  DEBIAN_FRONTEND=noninteractive $(SUDO) apt-get install -y -q python3-venv; }
+	@[ -x $(BIN)/python ] || $(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install -q --upgrade pip
+	$(BIN)/python -m pip install -q -e '.[dev]'
+	@touch $(STAMP)
+
+debian-deps:
+	@missing=$$(for p in $(TEST_DEBS); do dpkg-query -W -f='$${Status}\n' $$p 2>/dev/null \
+	  | grep -q 'install ok installed' || echo $$p; done); \
+	if [ -n "$$missing" ]; then \
+	  echo "installing Debian packages:" $$missing; \
+	  $(SUDO) apt-get update -q && \
+	  DEBIAN_FRONTEND=noninteractive $(SUDO) apt-get install -y -q --no-install-recommends $$missing; \
+	fi
+
+lint: venv
+	$(BIN)/ruff check .
+	$(BIN)/ruff format --check .
+
+typecheck: venv
+	$(BIN)/mypy
+
+unit: venv
+	$(BIN)/pytest
+
+# Hardware-in-the-loop tests over real SocketCAN vcan (user-mode Linux when the host has no CAN).
+hil: venv debian-deps
+	$(BIN)/python tools/vcan_run.py
+
+bench: venv
+	$(BIN)/python -m benchmarks.run
+
+clean:
+	rm -rf $(VENV) .mypy_cache .ruff_cache .pytest_cache .hypothesis

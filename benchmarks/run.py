@@ -1,0 +1,22 @@
+"""`make bench`: run every benchmark and print its figures."""
+
+from __future__ import annotations
+
+import importlib
+import sys
+import time
+
+BENCHMARKS = ["benchmarks.bench_supervisor"]
+
+
+def main(argv: list[str]) -> int:
+    selected = [b for b in BENCHMARKS if not argv or any(a in b for a in argv)]
+    for name in selected:
+        started = time.monotonic()
+        importlib.import_module(name).main()
+        print(f"({name} took {time.monotonic() - started:.1f} s)\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))
