@@ -1,7 +1,11 @@
 """The simulated world the twins share: one vehicle, stepped at a fixed rate.
 
-Twins write the parts of the command they own (the PC104 twin the pattern and wheel
-angles, the actuator twins throttle and brake) and read the pose they need (the scanner
+Twins write the inputs they own into their own slot (``set_inputs("pc104", ...)``,
+``set_inputs("brake_board", brake_pct=...)``, ``set_inputs("operator", brake_pct=...)``)
+and the world merges them the way the physical vehicle does: the strongest brake wins,
+the strongest throttle wins, the steering wheel (servo or operator) overrides the PC104's
+front steering setpoint when it is set, and the motion pattern is the PC104's, or the
+vehicle's natural one when no PC104 speaks. Twins read the pose they need (the scanner
 twins the platform pose). Stepping is explicit (``advance_to``) so tests run as fast as
 the CPU allows; ``run_realtime`` is the daemon's paced loop around the same step.
 """
@@ -14,7 +18,16 @@ from collections.abc import Callable
 from dataclasses import replace
 from typing import Any
 
-from appliance.sim.vehicle import VehicleCommand, VehicleParams, VehicleState, step
+from appliance.sim.vehicle import (
+    MotionPattern,
+    VehicleCommand,
+    VehicleParams,
+    VehicleState,
+    step,
+)
+
+# Sources that turn the steering wheel; the operator's hands are listed last and win.
+STEERING_WHEEL_SOURCES = ("steering_servo", "operator")
 
 
 class SimWorld:
@@ -31,16 +44,53 @@ class SimWorld:
         self._initial = initial if initial is not None else VehicleState()
         self.state = self._initial
         self.command = VehicleCommand()
+        self.default_pattern = MotionPattern.COUNTER_STEER
+        self._inputs: dict[str, dict[str, Any]] = {}
 
     def reset(self, initial: VehicleState | None = None) -> None:
         if initial is not None:
             self._initial = initial
         self.state = self._initial
         self.command = VehicleCommand()
+        self._inputs.clear()
 
     def update_command(self, **changes: Any) -> None:
-        """Change part of the command, leaving what other twins set untouched."""
+        """Change part of the command directly (tests and scripted scenarios)."""
         self.command = replace(self.command, **changes)
+
+    def set_inputs(self, source: str, **fields: Any) -> None:
+        """Record what one source asks for and recompute the merged command.
+
+        Fields: ``pattern``, ``front_steer_rad``, ``rear_steer_rad``, ``throttle_pct``,
+        ``brake_pct``, ``reverse``. A source that stops (a twin losing its link) calls
+        ``clear_inputs`` so its last wish does not linger.
+        """
+        unknown = set(fields) - set(VehicleCommand.__dataclass_fields__)
+        if unknown:
+            raise ValueError(f"unknown vehicle inputs: {sorted(unknown)}")
+        self._inputs.setdefault(source, {}).update(fields)
+        self._merge()
+
+    def clear_inputs(self, source: str) -> None:
+        self._inputs.pop(source, None)
+        self._merge()
+
+    def _merge(self) -> None:
+        slots = self._inputs
+        pc104 = slots.get("pc104", {})
+        wheel = [
+            s["front_steer_rad"]
+            for n, s in slots.items()
+            if n in STEERING_WHEEL_SOURCES and "front_steer_rad" in s
+        ]
+        self.command = VehicleCommand(
+            pattern=pc104.get("pattern", self.default_pattern),
+            front_steer_rad=wheel[-1] if wheel else pc104.get("front_steer_rad", 0.0),
+            rear_steer_rad=pc104.get("rear_steer_rad", 0.0),
+            throttle_pct=max((s.get("throttle_pct", 0.0) for s in slots.values()), default=0.0),
+            brake_pct=max((s.get("brake_pct", 0.0) for s in slots.values()), default=0.0),
+            reverse=bool(pc104.get("reverse", False)),
+        )
 
     def advance_to(self, t_s: float) -> VehicleState:
         """Step at the fixed rate until the world time reaches ``t_s``."""

@@ -140,3 +140,20 @@ def test_state_stays_finite_and_within_limits(
     assert abs(end.front_steer_rad) <= params.max_steer_angle_rad + 1e-12
     assert abs(end.speed_mps) <= params.max_speed_mps
     assert -math.pi <= end.yaw_rad <= math.pi
+
+
+def test_world_merges_inputs_like_the_vehicle() -> None:
+    world = SimWorld(PARAMS)
+    assert world.command.pattern is MotionPattern.COUNTER_STEER
+    world.set_inputs("pc104", pattern=MotionPattern.OBLIQUE, front_steer_rad=0.1, throttle_pct=20)
+    world.set_inputs("brake_board", brake_pct=10.0)
+    assert world.command.pattern is MotionPattern.OBLIQUE
+    assert (world.command.throttle_pct, world.command.brake_pct) == (20, 10.0)
+    world.set_inputs("steering_servo", front_steer_rad=0.2)
+    assert world.command.front_steer_rad == 0.2
+    world.set_inputs("operator", front_steer_rad=-0.3, brake_pct=60.0)
+    assert (world.command.front_steer_rad, world.command.brake_pct) == (-0.3, 60.0)
+    world.clear_inputs("operator")
+    assert (world.command.front_steer_rad, world.command.brake_pct) == (0.2, 10.0)
+    with pytest.raises(ValueError, match="unknown"):
+        world.set_inputs("pc104", warp_drive=1)
