@@ -144,7 +144,9 @@ def test_state_stays_finite_and_within_limits(
 
 def test_world_merges_inputs_like_the_vehicle() -> None:
     world = SimWorld(PARAMS)
-    assert world.command.pattern is MotionPattern.COUNTER_STEER
+    assert world.command == VehicleCommand()  # parked: stopped and braked
+    world.set_inputs("throttle_board", throttle_pct=5.0)
+    assert world.command.pattern is MotionPattern.COUNTER_STEER  # no PC104: natural pattern
     world.set_inputs("pc104", pattern=MotionPattern.OBLIQUE, front_steer_rad=0.1, throttle_pct=20)
     world.set_inputs("brake_board", brake_pct=10.0)
     assert world.command.pattern is MotionPattern.OBLIQUE
