@@ -6,7 +6,10 @@ import importlib
 import sys
 import time
 
-BENCHMARKS = ["benchmarks.bench_supervisor"]
+BENCHMARKS = [
+    "benchmarks.bench_supervisor",
+    "benchmarks.bench_sim_raycast",
+]
 
 
 def main(argv: list[str]) -> int:
