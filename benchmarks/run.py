@@ -10,6 +10,7 @@ BENCHMARKS = [
     "benchmarks.bench_supervisor",
     "benchmarks.bench_sim_raycast",
     "benchmarks.bench_lms111_decode",
+    "benchmarks.bench_actuators",
 ]
 
 

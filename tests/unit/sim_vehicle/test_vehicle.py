@@ -159,3 +159,10 @@ def test_world_merges_inputs_like_the_vehicle() -> None:
     assert (world.command.front_steer_rad, world.command.brake_pct) == (0.2, 10.0)
     with pytest.raises(ValueError, match="unknown"):
         world.set_inputs("pc104", warp_drive=1)
+
+
+def test_operator_hands_win_whatever_the_order() -> None:
+    world = SimWorld(PARAMS)
+    world.set_inputs("operator", front_steer_rad=-0.3)
+    world.set_inputs("steering_servo", front_steer_rad=0.2)
+    assert world.command.front_steer_rad == -0.3

@@ -1,0 +1,106 @@
+"""All four simulated boards of one vehicle: what the daemon starts for ``sim://`` ports.
+
+The ptys' stable paths live in one directory; ``port_path("sim://steering")`` is what the
+client opens, exactly as it would open ``/dev/serial/by-id/...`` on the vehicle. The panel's
+e-stop is wired to the actuator twins directly, not over serial, because on the vehicle it
+is a hard-wired loop that no software sits in.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import os
+import shutil
+import tempfile
+import time
+from collections.abc import Callable
+from typing import Any
+
+from appliance.config.models import SIM_PORT_PREFIX, VehicleConfig
+from appliance.sim.world import SimWorld
+from drivers.actuators.steering_model import PotMapping, ServoParams
+from drivers.actuators.twin import BoardTwin
+from drivers.actuators.twin_boards import BrakeTwin, PanelTwin, SteeringTwin, ThrottleTwin
+
+
+class ActuatorTwins:
+    """All four boards of one simulated vehicle, their ptys in one directory.
+
+    The daemon maps ``sim://steering`` to ``port_path("sim://steering")`` and gives that
+    path to the client, exactly as it would give ``/dev/serial/by-id/...`` on the vehicle.
+    """
+
+    def __init__(
+        self,
+        world: SimWorld | None = None,
+        directory: str | None = None,
+        *,
+        command_timeout_s: float = 0.1,
+        telemetry_period_s: float = 0.01,
+        servo_params: ServoParams | None = None,
+        pot_mapping: PotMapping | None = None,
+        seed: int = 0,
+    ) -> None:
+        self._own_directory = directory is None
+        self.directory = directory or tempfile.mkdtemp(prefix="dbw-twins-")
+        timing = {"command_timeout_s": command_timeout_s, "telemetry_period_s": telemetry_period_s}
+        path = os.path.join
+        self.steering = SteeringTwin(
+            path(self.directory, "steering"),
+            world,
+            params=servo_params,
+            pot_mapping=pot_mapping,
+            seed=seed,
+            **timing,
+        )
+        self.throttle = ThrottleTwin(path(self.directory, "throttle"), world, **timing)
+        self.brake = BrakeTwin(path(self.directory, "brake"), world, **timing)
+        self.panel = PanelTwin(path(self.directory, "panel"), on_estop=self._estop, **timing)
+        self.boards: dict[str, BoardTwin[Any]] = {
+            "steering": self.steering,
+            "throttle": self.throttle,
+            "brake": self.brake,
+            "panel": self.panel,
+        }
+
+    @classmethod
+    def from_config(
+        cls, config: VehicleConfig, world: SimWorld | None, directory: str | None = None
+    ) -> ActuatorTwins:
+        return cls(world, directory, command_timeout_s=config.safety.lower_layer_command_timeout_s)
+
+    def port_path(self, port: str) -> str:
+        """``sim://NAME`` -> the tty path (a stable symlink) the client should open."""
+        name = port.removeprefix(SIM_PORT_PREFIX)
+        if not port.startswith(SIM_PORT_PREFIX) or name not in self.boards:
+            raise ValueError(f"no simulated board for port {port!r}; known: {list(self.boards)}")
+        return self.boards[name].link.link_path
+
+    def _estop(self, active: bool) -> None:
+        for twin in (self.steering, self.throttle, self.brake):
+            twin.set_estop(active)
+
+    def step(self, now_s: float) -> None:
+        for twin in self.boards.values():
+            twin.step(now_s)
+
+    async def run(self, clock: Callable[[], float] = time.monotonic) -> None:
+        """Step every board at the telemetry rate, in real time, until cancelled."""
+        period_s = self.steering.telemetry_period_s
+        next_s = clock()
+        while True:
+            self.step(clock())
+            next_s += period_s
+            delay_s = next_s - clock()
+            if delay_s < 0.0:  # overran a period: restart the schedule rather than burst
+                next_s -= delay_s
+                delay_s = 0.0
+            await asyncio.sleep(delay_s)
+
+    def close(self) -> None:
+        for twin in self.boards.values():
+            twin.close()
+        if self._own_directory:
+            with contextlib.suppress(OSError):
+                shutil.rmtree(self.directory)
