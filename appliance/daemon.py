@@ -25,6 +25,7 @@ from appliance.control_loop import ControlLoop, HoldSafeCore
 from appliance.logs import get_logger
 from appliance.supervisor import ServiceContext, ServiceSpec, ServiceState, Supervisor
 from appliance.systemd_notify import SystemdNotifier
+from appliance.vehicle_io import VehicleIO, build_vehicle_io, input_ages_s
 from safety.safe_stop import SafeCommand, SafeStop
 from safety.watchdog import RestartPolicy
 
@@ -71,6 +72,7 @@ class Daemon:
         extra_services: list[ServiceSpec] | None = None,
         safe_stop: SafeStop | None = None,
         notifier: SystemdNotifier | None = None,
+        vehicle_io: VehicleIO | None = None,
         clock: Callable[[], float] = time.monotonic,
     ) -> None:
         self.config = config
@@ -79,6 +81,9 @@ class Daemon:
         self.notifier = notifier if notifier is not None else SystemdNotifier()
         self.control = ControlLoop(HoldSafeCore(self.safe_stop.command), config.rates.control_hz)
         policy = restart_policy(config)
+        self.io = vehicle_io if vehicle_io is not None else build_vehicle_io(config, policy)
+        for target in self.io.safe_stop_targets:
+            self.safe_stop.add_target(target)
         specs = [
             ServiceSpec(
                 name="control",
@@ -87,6 +92,7 @@ class Daemon:
                 restart=policy,
                 heartbeat_deadline_s=config.supervision.control_heartbeat_deadline_s,
             ),
+            *self.io.services,
             *(extra_services or []),
             ServiceSpec(
                 name="status",
@@ -130,7 +136,10 @@ class Daemon:
         try:
             result = await self._wait_for_end(root, duration_s)
         finally:
-            result = await self._shut_down(root, result)
+            try:
+                result = await self._shut_down(root, result)
+            finally:
+                self.io.close()
             if handle_signals:
                 for signum in (signal.SIGTERM, signal.SIGINT):
                     loop.remove_signal_handler(signum)
@@ -164,12 +173,14 @@ class Daemon:
         self.notifier.stopping()
         self.notifier.status(f"stopping: {result.reason}")
         log.info("daemon_stopping", reason=result.reason)
+        # Command the safe state while the links to the actuators are still up; the
+        # lower layers' own command timeouts take over once the drivers are gone.
+        self.safe_stop.engage(f"shutdown: {result.reason}")
         root.cancel()
         grace_s = self.config.safety.shutdown_grace_s
         done, _ = await asyncio.wait({root}, timeout=grace_s)
         if root in done and not root.cancelled() and root.exception() is not None:
             log.error("daemon_root_error", error=repr(root.exception()))
-        self.safe_stop.engage(f"shutdown: {result.reason}")
         stuck = [
             name
             for name, record in self.supervisor.records.items()
@@ -246,6 +257,7 @@ class Daemon:
                     control_cycles=jitter.cycles,
                     control_overruns=jitter.overruns,
                     control_jitter_p99_ms=round(jitter.jitter_p99_ms, 3),
+                    input_ages_s=input_ages_s(self.io, now_s),
                     watchdog_pings=self.watchdog_pings,
                 )
             ctx.beat()

@@ -34,7 +34,10 @@ class BoardClients:
 
 
 def make_board_clients(
-    config: VehicleConfig, resolve_sim_port: Callable[[str], str] | None = None
+    config: VehicleConfig,
+    resolve_sim_port: Callable[[str], str] | None = None,
+    *,
+    beat_while_reconnecting: bool = False,
 ) -> BoardClients:
     """The four clients of a vehicle profile; ``sim://`` ports go through ``resolve_sim_port``
     (``ActuatorTwins.port_path``), real ones are used as they are."""
@@ -58,23 +61,27 @@ def make_board_clients(
             port(devices.steering_serial.port),
             baudrate_bps=devices.steering_serial.baudrate_bps,
             max_age_s=ages.steering_pot_max_age_s,
+            beat_while_reconnecting=beat_while_reconnecting,
         ),
         throttle=ActuatorClient(
             ThrottleTelemetry,
             port(devices.throttle_serial.port),
             baudrate_bps=devices.throttle_serial.baudrate_bps,
             max_age_s=ages.actuator_board_max_age_s,
+            beat_while_reconnecting=beat_while_reconnecting,
         ),
         brake=ActuatorClient(
             BrakeTelemetry,
             port(devices.brake_serial.port),
             baudrate_bps=devices.brake_serial.baudrate_bps,
             max_age_s=ages.actuator_board_max_age_s,
+            beat_while_reconnecting=beat_while_reconnecting,
         ),
         panel=ActuatorClient(
             PanelTelemetry,
             port(devices.panel_serial.port),
             baudrate_bps=devices.panel_serial.baudrate_bps,
             max_age_s=ages.panel_max_age_s,
+            beat_while_reconnecting=beat_while_reconnecting,
         ),
     )

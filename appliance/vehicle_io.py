@@ -1,0 +1,171 @@
+"""Vehicle I/O: the drivers a profile asks for, and the simulated vehicle behind them.
+
+This is the one place that turns the config's ``devices`` into supervised services,
+topics and safe-stop targets. With ``simulation.enabled`` it also builds the simulated
+world and the twins, in this process: the clients still talk to them over the same
+transports they use on the vehicle (TCP, a CAN bus, real ptys), so nothing downstream can
+tell a twin from the hardware.
+
+Drivers are supervised as non-critical services that keep beating while they reconnect:
+whether a *device* is there is a question of input staleness for the safety layer; the
+supervisor's heartbeat answers whether the *software* is alive.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import math
+import time
+from collections.abc import Awaitable, Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+from appliance.config import VehicleConfig
+from appliance.logs import get_logger
+from appliance.sim.vehicle import VehicleParams, VehicleState
+from appliance.sim.world import SimWorld
+from appliance.supervisor import ServiceContext, ServiceSpec
+from appliance.topics import TopicRegistry
+from drivers.actuators.boards import BoardClients, make_board_clients
+from drivers.actuators.client import ActuatorClient
+from drivers.actuators.messages import (
+    BrakeCommand,
+    SteeringCommand,
+    SteeringMode,
+    ThrottleCommand,
+)
+from drivers.actuators.twin_set import ActuatorTwins
+from safety.safe_stop import SafeCommand, SafeStopTarget
+from safety.watchdog import RestartPolicy
+
+log = get_logger("vehicle_io")
+
+DRIVER_HEARTBEAT_DEADLINE_S = 1.0
+TWIN_HEARTBEAT_DEADLINE_S = 1.0
+
+
+@dataclass
+class VehicleIO:
+    """Everything the daemon runs to talk to (or simulate) the vehicle."""
+
+    topics: TopicRegistry = field(default_factory=TopicRegistry)
+    services: list[ServiceSpec] = field(default_factory=list)
+    safe_stop_targets: list[SafeStopTarget] = field(default_factory=list)
+    world: SimWorld | None = None
+    boards: BoardClients | None = None
+    board_twins: ActuatorTwins | None = None
+    _closers: list[Callable[[], None]] = field(default_factory=list)
+
+    def close(self) -> None:
+        """Release what outlives tasks (pty pairs, temporary directories)."""
+        for closer in reversed(self._closers):
+            try:
+                closer()
+            except Exception as exc:  # cleanup must go on
+                log.warning("close_failed", error=f"{type(exc).__name__}: {exc}")
+        self._closers.clear()
+
+
+class BoardsSafeStop:
+    """Throttle to 0, brake to the safe level, steering clutch out: one frame each."""
+
+    name = "actuator_boards"
+
+    def __init__(self, boards: BoardClients) -> None:
+        self._boards = boards
+
+    def command_safe_state(self, command: SafeCommand, reason: str) -> None:
+        boards = self._boards
+        orders: list[tuple[ActuatorClient[Any], object]] = [
+            (boards.throttle, ThrottleCommand(enable=False)),
+            (boards.brake, BrakeCommand(enable=True, position_pct=command.brake_pct)),
+            (boards.steering, SteeringCommand(SteeringMode.RELEASE)),
+        ]
+        failures = []
+        for client, order in orders:
+            try:
+                client.set_command(order)  # type: ignore[arg-type]
+            except Exception as exc:  # tell the other boards anyway
+                failures.append(f"{type(exc).__name__}: {exc}")
+        if failures:
+            raise RuntimeError("; ".join(failures))
+
+
+def _service(
+    name: str,
+    run: Callable[[Callable[[], None]], Awaitable[None]],
+    policy: RestartPolicy,
+    deadline_s: float,
+) -> ServiceSpec:
+    async def adapter(ctx: ServiceContext) -> None:
+        await run(ctx.beat)
+
+    return ServiceSpec(
+        name=name,
+        run=adapter,
+        critical=False,
+        restart=policy,
+        heartbeat_deadline_s=deadline_s,
+        startup_grace_s=max(deadline_s, 5.0),
+    )
+
+
+def build_vehicle_io(config: VehicleConfig, policy: RestartPolicy) -> VehicleIO:
+    io = VehicleIO()
+    if config.simulation.enabled:
+        _build_world(config, io, policy)
+    _build_boards(config, io, policy)
+    return io
+
+
+def _build_world(config: VehicleConfig, io: VehicleIO, policy: RestartPolicy) -> None:
+    world = SimWorld(
+        VehicleParams.from_config(config),
+        initial=VehicleState(),
+        step_hz=config.simulation.world_step_hz,
+    )
+    io.world = world
+
+    async def run_world(beat: Callable[[], None]) -> None:
+        await world.run_realtime(on_step=beat)
+
+    io.services.append(_service("sim.world", run_world, policy, TWIN_HEARTBEAT_DEADLINE_S))
+
+
+def _build_boards(config: VehicleConfig, io: VehicleIO, policy: RestartPolicy) -> None:
+    resolve = None
+    if config.simulation.enabled:
+        twins = ActuatorTwins.from_config(config, io.world)
+        io.board_twins = twins
+        io._closers.append(twins.close)
+        resolve = twins.port_path
+
+        async def run_twins(beat: Callable[[], None]) -> None:
+            period_s = twins.steering.telemetry_period_s
+            while True:
+                twins.step(time.monotonic())
+                beat()
+                await asyncio.sleep(period_s)
+
+        io.services.append(_service("sim.boards", run_twins, policy, TWIN_HEARTBEAT_DEADLINE_S))
+    boards = make_board_clients(config, resolve, beat_while_reconnecting=True)
+    io.boards = boards
+    for name, client in (
+        ("steering", boards.steering),
+        ("throttle", boards.throttle),
+        ("brake", boards.brake),
+        ("panel", boards.panel),
+    ):
+        io.topics.register(f"board.{name}", client.telemetry)
+        io.services.append(
+            _service(f"board.{name}", client.run, policy, DRIVER_HEARTBEAT_DEADLINE_S)
+        )
+    io.safe_stop_targets.append(BoardsSafeStop(boards))
+
+
+def input_ages_s(io: VehicleIO, now_s: float) -> dict[str, float]:
+    """Age of every input topic, rounded for logs (inf: never received)."""
+    return {
+        name: (round(age, 3) if math.isfinite(age) else age)
+        for name, age in io.topics.ages_s(now_s).items()
+    }
