@@ -11,6 +11,7 @@ BENCHMARKS = [
     "benchmarks.bench_sim_raycast",
     "benchmarks.bench_lms111_decode",
     "benchmarks.bench_actuators",
+    "benchmarks.bench_lms111_stream",
 ]
 
 
