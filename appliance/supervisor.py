@@ -28,6 +28,7 @@ from safety.watchdog import Heartbeat, RestartBudget, RestartPolicy
 log = get_logger("supervisor")
 
 Clock = Callable[[], float]
+PERMANENT_PREFIX = "permanent failure: "
 
 
 class ServiceState(StrEnum):
@@ -41,6 +42,11 @@ class ServiceState(StrEnum):
 
 class HeartbeatMissed(Exception):
     """Raised by the watcher to end a run whose service stopped beating."""
+
+
+class PermanentServiceError(Exception):
+    """Raised by a service whose failure a restart cannot fix (a device refusing its
+    configuration, a refused login): the supervisor gives up at once instead of looping."""
 
 
 class ServiceExited(Exception):
@@ -193,7 +199,11 @@ class Supervisor:
                 del record.failure_log[:-20]
                 if self._on_failure is not None:
                     self._on_failure(spec, reason)
-                delay_s = record.budget.on_failure(ran_for_s)
+                delay_s = (
+                    None
+                    if reason.startswith(PERMANENT_PREFIX)
+                    else record.budget.on_failure(ran_for_s)
+                )
                 if delay_s is None:
                     self._give_up(record, reason)
                     return
@@ -247,6 +257,9 @@ class Supervisor:
         if not errors:
             return "ended without an error"
         error = errors[0]
+        if isinstance(error, PermanentServiceError):
+            log.error("service_failed_permanently", service=record.spec.name, error=str(error))
+            return f"{PERMANENT_PREFIX}{error}"
         log.error(
             "service_crashed",
             service=record.spec.name,

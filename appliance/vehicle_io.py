@@ -22,10 +22,12 @@ from typing import Any
 
 from appliance.config import VehicleConfig
 from appliance.logs import get_logger
+from appliance.sim.site import Pose2D
+from appliance.sim.site_file import load_site
 from appliance.sim.vehicle import VehicleParams, VehicleState
 from appliance.sim.world import SimWorld
-from appliance.supervisor import ServiceContext, ServiceSpec
-from appliance.topics import TopicRegistry
+from appliance.supervisor import PermanentServiceError, ServiceContext, ServiceSpec
+from appliance.topics import Topic, TopicRegistry
 from drivers.actuators.boards import BoardClients, make_board_clients
 from drivers.actuators.client import ActuatorClient
 from drivers.actuators.messages import (
@@ -35,6 +37,10 @@ from drivers.actuators.messages import (
     ThrottleCommand,
 )
 from drivers.actuators.twin_set import ActuatorTwins
+from drivers.lms111.client import Lms111Client
+from drivers.lms111.mounted import MountedScan, mount_pose
+from drivers.lms111.session import Lms111ConfigError
+from drivers.lms111.twin import Lms111Twin
 from safety.safe_stop import SafeCommand, SafeStopTarget
 from safety.watchdog import RestartPolicy
 
@@ -53,6 +59,8 @@ class VehicleIO:
     safe_stop_targets: list[SafeStopTarget] = field(default_factory=list)
     world: SimWorld | None = None
     boards: BoardClients | None = None
+    scanners: dict[str, Lms111Client] = field(default_factory=dict)
+    sim_scanners: list[Lms111Twin] = field(default_factory=list)
     board_twins: ActuatorTwins | None = None
     _closers: list[Callable[[], None]] = field(default_factory=list)
 
@@ -114,14 +122,18 @@ def build_vehicle_io(config: VehicleConfig, policy: RestartPolicy) -> VehicleIO:
     io = VehicleIO()
     if config.simulation.enabled:
         _build_world(config, io, policy)
+    _build_scanners(config, io, policy)
     _build_boards(config, io, policy)
     return io
 
 
 def _build_world(config: VehicleConfig, io: VehicleIO, policy: RestartPolicy) -> None:
+    sim = config.simulation
     world = SimWorld(
         VehicleParams.from_config(config),
-        initial=VehicleState(),
+        initial=VehicleState(
+            x_m=sim.start_x_m, y_m=sim.start_y_m, yaw_rad=math.radians(sim.start_yaw_deg)
+        ),
         step_hz=config.simulation.world_step_hz,
     )
     io.world = world
@@ -130,6 +142,69 @@ def _build_world(config: VehicleConfig, io: VehicleIO, policy: RestartPolicy) ->
         await world.run_realtime(on_step=beat)
 
     io.services.append(_service("sim.world", run_world, policy, TWIN_HEARTBEAT_DEADLINE_S))
+
+
+def _build_scanners(config: VehicleConfig, io: VehicleIO, policy: RestartPolicy) -> None:
+    """Both LMS111 clients (and, in simulation, the twins they connect to)."""
+    sides = (
+        ("left", config.devices.lms111_left, config.geometry.scanner_left_mount),
+        ("right", config.devices.lms111_right, config.geometry.scanner_right_mount),
+    )
+    site = load_site(config.simulation.site) if config.simulation.enabled else None
+    world = io.world
+    for index, (side, endpoint, mount) in enumerate(sides):
+        name = f"lms111_{side}"
+        if site is not None and world is not None:
+
+            def platform_pose(_t_s: float, world: SimWorld = world) -> Pose2D:
+                state = world.state
+                return Pose2D(state.x_m, state.y_m, state.platform_yaw_rad)
+
+            twin = Lms111Twin(
+                site,
+                mount_pose(mount),
+                platform_pose,
+                name=f"sim.{name}",
+                serial_number=0x0142_0001 + index,
+                range_bias_m=config.simulation.scanner_range_bias_m * (1 if index else -1),
+                seed=index,
+                host=endpoint.host,
+                port=endpoint.port,
+                scan_frequency_hz=endpoint.scan_frequency_hz,
+                angular_resolution_deg=endpoint.angular_resolution_deg,
+            )
+            io.sim_scanners.append(twin)
+            io.services.append(_service(f"sim.{name}", twin.run, policy, TWIN_HEARTBEAT_DEADLINE_S))
+        topic: Topic[MountedScan] = Topic(f"scan.{side}")
+        io.topics.register(topic.name, topic)
+        client = Lms111Client(
+            name,
+            endpoint,
+            mount,
+            topic,
+            read_deadline_periods=5,
+            beat_while_waiting=True,
+        )
+        io.scanners[side] = client
+        io.services.append(
+            _service(
+                name, _permanent_on_config_error(client.run), policy, DRIVER_HEARTBEAT_DEADLINE_S
+            )
+        )
+
+
+def _permanent_on_config_error(
+    run: Callable[[Callable[[], None]], Awaitable[None]],
+) -> Callable[[Callable[[], None]], Awaitable[None]]:
+    """A scanner that refuses its configuration or login will refuse it again: give up."""
+
+    async def wrapped(beat: Callable[[], None]) -> None:
+        try:
+            await run(beat)
+        except Lms111ConfigError as exc:
+            raise PermanentServiceError(str(exc)) from exc
+
+    return wrapped
 
 
 def _build_boards(config: VehicleConfig, io: VehicleIO, policy: RestartPolicy) -> None:

@@ -32,7 +32,12 @@ class VehicleKind(StrEnum):
 
 
 class SensorMount(_Model):
-    """Pose of a sensor in the vehicle frame (x forward, y left, z up, origin at the rear axle)."""
+    """Pose of a sensor in the vehicle frame.
+
+    x forward, y left, z up; the origin is the vehicle's geometric centre (midway between
+    the steered axles), the reference Qian et al. convert every pose to and the point the
+    kinematics of the simulated vehicle integrate.
+    """
 
     x_m: float = Field(0.0, ge=-30.0, le=30.0)
     y_m: float = Field(0.0, ge=-10.0, le=10.0)
@@ -54,8 +59,8 @@ class Geometry(_Model):
     anchor_point_forward_m: float = Field(1.5, ge=0.0, le=20.0)
     # Sideslip gain G_ss = 1 / (1 + (v / V_char)^2) (Stanley et al.).
     characteristic_speed_mps: float = Field(12.0, gt=0.5, le=60.0)
-    scanner_left_mount: SensorMount = SensorMount(x_m=4.5, y_m=1.1, yaw_deg=45.0)
-    scanner_right_mount: SensorMount = SensorMount(x_m=4.5, y_m=-1.1, yaw_deg=-45.0)
+    scanner_left_mount: SensorMount = SensorMount(x_m=2.6, y_m=1.1, yaw_deg=45.0)
+    scanner_right_mount: SensorMount = SensorMount(x_m=2.6, y_m=-1.1, yaw_deg=-45.0)
 
 
 class Limits(_Model):
@@ -101,11 +106,18 @@ class Lms111Endpoint(_Model):
 
     @model_validator(mode="after")
     def _supported_modes(self) -> Self:
+        # The LMS111 runs 25 Hz at 0.25 deg or 50 Hz at 0.5 deg (25 Hz at 0.5 deg too);
+        # it refuses 50 Hz at 0.25 deg at start-up, so refuse it here, before the vehicle.
         if self.scan_frequency_hz not in (25, 50):
             raise ValueError(f"scan_frequency_hz must be 25 or 50 (got {self.scan_frequency_hz})")
         if self.angular_resolution_deg not in (0.25, 0.5):
             raise ValueError(
                 f"angular_resolution_deg must be 0.25 or 0.5 (got {self.angular_resolution_deg})"
+            )
+        if self.scan_frequency_hz == 50 and self.angular_resolution_deg == 0.25:
+            raise ValueError(
+                "the LMS111 cannot scan at 50 Hz with 0.25 deg resolution: "
+                "use 25 Hz with 0.25 deg or 50 Hz with 0.5 deg"
             )
         return self
 
@@ -203,6 +215,15 @@ class Simulation(_Model):
 
     enabled: bool = True
     world_step_hz: float = Field(100.0, ge=10.0, le=1000.0)
+    # A built-in site (launcher, pallets) or a site TOML file the simulated scanners see.
+    site: str = Field("launcher", min_length=1)
+    # Where the vehicle starts: Qian et al. bring it "in front of the launcher at a
+    # distance of about 10 m and with a small heading angle".
+    start_x_m: float = Field(-12.6, ge=-1000.0, le=1000.0)
+    start_y_m: float = Field(0.4, ge=-1000.0, le=1000.0)
+    start_yaw_deg: float = Field(3.0, ge=-180.0, le=180.0)
+    # Fixed range bias of each simulated scanner (a real unit's calibration offset).
+    scanner_range_bias_m: float = Field(0.01, ge=-0.1, le=0.1)
 
 
 class VehicleConfig(_Model):

@@ -59,3 +59,42 @@ async def test_shutdown_commands_the_boards_safe() -> None:
     for client in (boards.throttle, boards.brake, boards.steering):
         assert client.health().commands_sent >= 1, client.board
     assert boards.panel.health().commands_sent == 0
+
+
+async def test_simulated_scanners_see_the_launcher_ahead() -> None:
+    daemon = Daemon(load_config("sim"))
+    io = daemon.io
+    run = asyncio.ensure_future(daemon.run(handle_signals=False))
+    try:
+        scan_left = io.topics.get("scan.left")
+        first = await asyncio.wait_for(scan_left.wait_next(), 10.0)
+        later = await asyncio.wait_for(scan_left.wait_next(first.seq + 10), 5.0)
+        assert later.value.scan.scan_counter - first.value.scan.scan_counter >= 10
+        points = later.value.points_vehicle_m()
+        # The vehicle starts about 12.6 m behind the front board (x = 0 in the site),
+        # heading 3 deg off its axis: the board's points lie ahead at x ~ 12.6 m.
+        ahead = points[(abs(points[:, 1]) < 1.0)]
+        assert len(ahead) > 5
+        assert 12.0 < float(ahead[:, 0].min()) < 13.2
+    finally:
+        daemon.request_stop("test over")
+        await asyncio.wait_for(run, 3.0)
+
+
+async def test_scanner_refusing_its_configuration_is_given_up_without_a_loop() -> None:
+    daemon = Daemon(load_config("sim"))
+    twins = [t for t in daemon.io.sim_scanners if t.name == "sim.lms111_right"]
+    assert len(twins) == 1
+    twin = twins[0]
+    twin.faults.fail_commands = {"mLMPsetscancfg": 0x5}  # invalid data
+    run = asyncio.ensure_future(daemon.run(handle_signals=False))
+    try:
+        record = daemon.supervisor.records["lms111_right"]
+        await wait_until(lambda: record.state is ServiceState.FAILED, 10.0)
+        assert record.budget.total_restarts == 0
+        assert "mLMPsetscancfg" in record.last_error
+        assert daemon.supervisor.latched_error is None
+        assert daemon.supervisor.records["lms111_left"].state is ServiceState.RUNNING
+    finally:
+        daemon.request_stop("test over")
+        await asyncio.wait_for(run, 3.0)

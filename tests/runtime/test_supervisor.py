@@ -205,3 +205,20 @@ def test_critical_service_must_have_a_heartbeat() -> None:
 def test_service_names_are_unique() -> None:
     with pytest.raises(ValueError, match="unique"):
         Supervisor([spec("a", beating()), spec("a", beating())])
+
+
+async def test_permanent_failure_is_not_retried() -> None:
+    from appliance.supervisor import PermanentServiceError
+
+    runs = 0
+
+    async def refuses(ctx: ServiceContext) -> None:
+        nonlocal runs
+        runs += 1
+        raise PermanentServiceError("scanner refused its configuration: invalid data")
+
+    sup = Supervisor([spec("scanner", refuses, critical=False)])
+    async with running(sup):
+        await wait_until(lambda: sup.records["scanner"].state is ServiceState.FAILED)
+    assert runs == 1
+    assert "refused its configuration" in sup.records["scanner"].last_error
