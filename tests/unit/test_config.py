@@ -155,3 +155,11 @@ def test_cli_version() -> None:
     result = run_cli("--version")
     assert result.returncode == 0
     assert __version__ in result.stdout
+
+
+def test_lms111_mode_the_device_does_not_have_is_refused() -> None:
+    problems = problems_of(
+        "[simulation]\nenabled = true\n"
+        "[devices.lms111_left]\nscan_frequency_hz = 50\nangular_resolution_deg = 0.25\n"
+    )
+    assert any("50 Hz with 0.25 deg" in m for m in problems.values())
