@@ -142,11 +142,15 @@ def events(logs: Sequence[Mapping[str, Any]], name: str) -> list[Mapping[str, An
     return [entry for entry in logs if entry["event"] == name]
 
 
-def assert_counters_continuous(scans: list[MountedScan]) -> None:
+def assert_counters_continuous(scans: list[MountedScan], skipped_by_twin: int = 0) -> None:
+    """Every scan the twin sent arrived. The twin itself skips scans (and says so) only when
+    its event loop fell more than a few periods behind, as on a loaded CI machine."""
     counters = np.array([s.scan.scan_counter for s in scans], dtype=np.int64)
     telegrams = np.array([s.scan.telegram_counter for s in scans], dtype=np.int64)
-    assert np.all(np.diff(counters) % 65536 == 1), counters
     assert np.all(np.diff(telegrams) % 65536 == 1), telegrams
+    gaps = np.diff(counters) % 65536 - 1
+    assert np.all(gaps >= 0), counters
+    assert int(gaps.sum()) <= skipped_by_twin, counters
 
 
 # ---- scans flow ------------------------------------------------------------------------
@@ -170,9 +174,10 @@ async def test_scans_flow_at_the_configured_rate_and_resolution(
     assert len(scans) == pytest.approx(frequency_hz * elapsed_s, abs=3)
     assert health.scans_per_s == pytest.approx(frequency_hz, abs=3)
     assert health.connected and health.configured and health.state == "streaming"
-    assert (health.dropped_scans, health.malformed_telegrams, health.reconnects) == (0, 0, 0)
+    assert health.dropped_scans <= r.twin.stats.scans_skipped
+    assert (health.malformed_telegrams, health.reconnects) == (0, 0)
     assert len(r.beats) == health.scans_total
-    assert_counters_continuous(r.scans)
+    assert_counters_continuous(r.scans, r.twin.stats.scans_skipped)
     scan = scans[-1].scan
     assert len(scan.ranges_m) == beams
     assert scan.angular_step_rad == pytest.approx(math.radians(resolution_deg))
@@ -285,8 +290,9 @@ async def test_fragmented_and_batched_telegrams_lose_nothing(dialect: Dialect) -
         await asyncio.sleep(1.0)
         health = r.client.health
     assert health.scans_total >= 40
-    assert (health.dropped_scans, health.malformed_telegrams, health.reconnects) == (0, 0, 0)
-    assert_counters_continuous(r.scans)
+    assert health.dropped_scans <= r.twin.stats.scans_skipped
+    assert (health.malformed_telegrams, health.reconnects) == (0, 0)
+    assert_counters_continuous(r.scans, r.twin.stats.scans_skipped)
     assert r.twin.stats.writes > 2 * r.twin.stats.telegrams_sent / 3  # really cut up
 
 
@@ -298,8 +304,9 @@ async def test_garbage_between_telegrams_is_counted_and_no_scan_is_lost(dialect:
             health = r.client.health
             sent = r.twin.stats.garbage_bytes
     assert 0 < health.garbage_bytes <= sent
-    assert (health.dropped_scans, health.malformed_telegrams, health.reconnects) == (0, 0, 0)
-    assert_counters_continuous(r.scans)
+    assert health.dropped_scans <= r.twin.stats.scans_skipped
+    assert (health.malformed_telegrams, health.reconnects) == (0, 0)
+    assert_counters_continuous(r.scans, r.twin.stats.scans_skipped)
     assert len(events(logs, "lms111_garbage")) == 1  # one episode, not one line per read
 
 
@@ -316,7 +323,8 @@ async def test_corrupted_telegrams_are_counted_and_the_stream_continues(
             corrupted = r.twin.stats.corrupted
     assert corrupted >= 5
     assert health.malformed_telegrams == corrupted
-    assert health.dropped_scans == corrupted  # each one leaves a scan counter gap
+    # each one leaves a scan counter gap (plus any the twin skipped itself under load)
+    assert corrupted <= health.dropped_scans <= corrupted + r.twin.stats.scans_skipped
     assert health.reconnects == 0
     assert len(events(logs, "lms111_malformed_telegram")) == 1
     assert len(events(logs, "lms111_scans_dropped")) == 1
