@@ -12,6 +12,7 @@ import sys
 import click
 
 from appliance import __version__
+from appliance.cli_lms111 import lms111
 from appliance.config import BUILTIN_PROFILES, ConfigError, VehicleConfig, load_config
 from appliance.logs import LEVELS, configure_logging
 
@@ -110,6 +111,9 @@ def _to_toml(data: dict[str, object], prefix: str = "") -> str:
         sub = _to_toml(value, f"{prefix}.{key}" if prefix else key)
         out = f"{out}\n\n{sub}" if out else sub
     return out
+
+
+cli.add_command(lms111)
 
 
 def main() -> None:
