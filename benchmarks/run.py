@@ -12,6 +12,7 @@ BENCHMARKS = [
     "benchmarks.bench_lms111_decode",
     "benchmarks.bench_actuators",
     "benchmarks.bench_lms111_stream",
+    "benchmarks.bench_pc104",
 ]
 
 

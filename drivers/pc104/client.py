@@ -1,0 +1,335 @@
+"""The asyncio client of the PC104 link: a short loop around the sans-I/O codec.
+
+One task (the supervisor's service ``run``) owns the bus: it sends the motion command at
+the control rate and the heartbeat at 10 Hz against absolute deadlines, drains received
+frames between deadlines (a bounded number per turn, so a flooded bus cannot delay a
+command), checks them with one :class:`ReceiveMonitor` per PC104 message and publishes the
+accepted ones to latest-value topics stamped with their receive time. One task rather
+than a sender and a receiver: ordering is deterministic and there is nothing to join.
+
+What goes out is deny-by-default: the latest command from :meth:`send_command` only while
+it is younger than ``lower_layer_command_timeout_s``, the PC104 status is fresh and the
+PC104 reports automatic control; otherwise STOP, and once a motion command has been
+replaced by STOP the client holds STOP until the control loop sends STOP itself. The
+PC104 applies the same rule on its side (it stops 100 ms after commands stop, then waits
+for a STOP), so whether motion resumes is always the control loop's explicit decision.
+
+Failures never end ``run``: a full transmit buffer drops the frame, a lost interface
+closes and reopens the bus with backoff, a restarted PC104 is resynchronised by the
+monitors; each is logged once when it starts and once when it ends. ``beat`` is called on
+every turn of the loop, reconnecting included: a dead cable is a data fault that the
+stale status reports to the safety layer, not a hung service a restart would fix.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import math
+import time
+from collections.abc import Callable
+
+import can
+
+from appliance.config.models import VehicleConfig
+from appliance.logs import get_logger
+from drivers.pc104 import protocol
+from drivers.pc104.client_core import (
+    ClientParams,
+    LinkHealth,
+    Pc104Topics,
+    RateMeter,
+    command_to_send,
+)
+from drivers.pc104.errorframes import BusCondition, bus_condition
+from drivers.pc104.link import BusFactory, BusLink, Episode, LinkLost, bus_factory, next_deadline
+from drivers.pc104.messages import (
+    PROTOCOL_VERSION,
+    HighLevelState,
+    HlHeartbeat,
+    Inclinometer,
+    MotionCommand,
+    MotorPulses,
+    Pc104Heartbeat,
+    Pc104Status,
+    WheelAngles,
+)
+from drivers.pc104.monitor import MonitorParams, ReceiveMonitor, RxVerdict
+from drivers.pc104.protocol import ErrorReason, Pc104ProtocolError
+
+log = get_logger("pc104")
+
+MAX_FRAMES_PER_TURN = 256
+_BUS_STATES = {can.BusState.PASSIVE: BusCondition.PASSIVE, can.BusState.ERROR: BusCondition.BUS_OFF}
+
+
+class Pc104Client:
+    """The daemon's end of the PC104 link. ``run(beat)`` is the supervised service."""
+
+    def __init__(
+        self,
+        config: VehicleConfig,
+        *,
+        topics: Pc104Topics | None = None,
+        open_bus: BusFactory | None = None,
+        clock: Callable[[], float] = time.monotonic,
+        params: ClientParams | None = None,
+    ) -> None:
+        self.params = params if params is not None else ClientParams.from_config(config)
+        self.topics = topics if topics is not None else Pc104Topics.create()
+        self._open_bus = (
+            open_bus
+            if open_bus is not None
+            else bus_factory(config.devices.can, protocol.PC104_IDS)
+        )
+        self._clock = clock
+        self.monitors: dict[int, ReceiveMonitor] = {}
+        for spec in protocol.SPECS_BY_ID.values():
+            if spec.frame_id in protocol.PC104_IDS:
+                max_age_s = max(self.params.status_max_age_s, 3 * spec.period_s)
+                self.monitors[spec.frame_id] = ReceiveMonitor(
+                    MonitorParams(period_s=spec.period_s, max_age_s=max_age_s)
+                )
+        self._status_id = protocol.spec_for(Pc104Status).frame_id
+        self._heartbeat_period_s = protocol.spec_for(HlHeartbeat).period_s
+        self._command: MotionCommand | None = None
+        self._command_s = -math.inf
+        self._holding = False
+        self._state = HighLevelState.STANDBY
+        self._counters = {protocol.spec_for(t).frame_id: 0 for t in (MotionCommand, HlHeartbeat)}
+        self._link: BusLink | None = None
+        self._status: Pc104Status | None = None
+        self._errors = {reason: 0 for reason in ErrorReason}
+        self._sent = self._dropped = self._received = self._reconnects = 0
+        self._in_rate, self._out_rate = RateMeter(), RateMeter()
+        self._frame_condition = BusCondition.ACTIVE
+        self._polled_condition = BusCondition.ACTIVE
+        self._next_poll_s = -math.inf
+        self._stale_since_s: float | None = None
+        self._last_error = ""
+        self._ep_link = Episode(log, "pc104_link_down")
+        self._ep_stale = Episode(log, "pc104_status_stale")
+        self._ep_drops = Episode(log, "pc104_send_drops")
+        self._ep_bus = Episode(log, "pc104_bus_error_state")
+        self._ep_hold = Episode(log, "pc104_holding_stop")
+        self._ep_version = Episode(log, "pc104_protocol_mismatch")
+        self._ep_rx = {i: Episode(log, "pc104_receive_errors") for i in self.monitors}
+
+    # ---- what the control loop calls --------------------------------------------------
+    def send_command(self, command: MotionCommand, now_s: float | None = None) -> None:
+        """Make ``command`` the one sent every period; raises CommandRefused at once (in
+        the caller) if it is outside the DBC, so it never becomes the latest command."""
+        protocol.encode(command, 0)
+        self._command = command
+        self._command_s = self._clock() if now_s is None else now_s
+
+    def set_state(self, state: HighLevelState) -> None:
+        """The high-level state announced in HL_Heartbeat."""
+        self._state = state
+
+    def health(self, now_s: float | None = None) -> LinkHealth:
+        now_s = self._clock() if now_s is None else now_s
+        status_monitor = self.monitors[self._status_id]
+        monitors = self.monitors.values()
+        status = self._status
+        return LinkHealth(
+            connected=self._link is not None,
+            stale=status_monitor.stale(now_s),
+            status_age_s=status_monitor.age_s(now_s),
+            frames_in_per_s=self._in_rate.rate_per_s,
+            frames_out_per_s=self._out_rate.rate_per_s,
+            crc_errors=self._errors[ErrorReason.CRC],
+            malformed_frames=self._errors[ErrorReason.LENGTH] + self._errors[ErrorReason.RANGE],
+            counter_errors=sum(m.counts.counter_errors for m in monitors),
+            late_frames=sum(m.counts.late for m in monitors),
+            send_drops=self._dropped,
+            resyncs=sum(m.counts.resyncs for m in monitors),
+            reconnects=self._reconnects,
+            bus_condition=max(self._frame_condition, self._polled_condition),
+            control_source=None if status is None else status.control_source,
+            peer_ready=status is not None and status.ready and not status_monitor.stale(now_s),
+            holding_stop=self._holding,
+            stale_since_s=self._stale_since_s,
+            last_error=self._last_error,
+        )
+
+    # ---- the service ------------------------------------------------------------------
+    async def run(self, beat: Callable[[], None]) -> None:
+        """Run the link until cancelled; never returns and never raises for link faults."""
+        backoff_s = self.params.reopen_initial_backoff_s
+        first = True
+        log.info("pc104_client_started", dbc=protocol.DATABASE.version)
+        try:
+            while True:
+                if not first:
+                    await self._pause(backoff_s, beat)
+                    backoff_s = min(
+                        backoff_s * self.params.reopen_backoff_factor,
+                        self.params.reopen_backoff_cap_s,
+                    )
+                first = False
+                try:
+                    link = BusLink(self._open_bus())
+                except (can.CanError, OSError, ValueError) as exc:
+                    self._lost(f"cannot open the bus: {exc}")
+                    continue
+                self._link = link
+                accepted_before = self.monitors[self._status_id].counts.accepted
+                try:
+                    await self._serve(link, beat)
+                except LinkLost as exc:
+                    self._lost(str(exc))
+                except BaseException:  # cancelled: close (joining python-can's thread), re-raise
+                    self._link = None
+                    await link.aclose()
+                    raise
+                self._link = None
+                self._reconnects += 1
+                if self.monitors[self._status_id].counts.accepted > accepted_before:
+                    backoff_s = self.params.reopen_initial_backoff_s  # this session worked
+                await link.aclose()
+        finally:
+            log.info("pc104_client_stopped")
+
+    async def _pause(self, duration_s: float, beat: Callable[[], None]) -> None:
+        end_s = self._clock() + duration_s
+        while (left_s := end_s - self._clock()) > 0:
+            beat()
+            await asyncio.sleep(min(left_s, self.params.command_period_s))
+
+    def _lost(self, why: str) -> None:
+        self._last_error = why
+        self._ep_link.occur(self._clock(), error=why)
+
+    async def _serve(self, link: BusLink, beat: Callable[[], None]) -> None:
+        now_s = self._clock()
+        next_command_s = next_heartbeat_s = now_s
+        while True:
+            link.check()
+            now_s = self._clock()
+            if now_s >= next_command_s:
+                self._send_command_frame(link, now_s)
+                next_command_s = next_deadline(next_command_s, self.params.command_period_s, now_s)
+            if now_s >= next_heartbeat_s:
+                self._transmit(link, HlHeartbeat(self._state), now_s)
+                next_heartbeat_s = next_deadline(next_heartbeat_s, self._heartbeat_period_s, now_s)
+            self._watch(link, now_s)
+            beat()
+            wake_s = min(next_command_s, next_heartbeat_s)
+            status_monitor = self.monitors[self._status_id]
+            if not status_monitor.stale(now_s):
+                wake_s = min(wake_s, status_monitor.stale_deadline_s() + 1e-4)
+            message = await link.next_message(wake_s - self._clock())
+            handled = 0
+            while message is not None:
+                self._on_message(message, self._clock())
+                handled += 1
+                message = link.poll() if handled < MAX_FRAMES_PER_TURN else None
+
+    # ---- sending ----------------------------------------------------------------------
+    def _send_command_frame(self, link: BusLink, now_s: float) -> None:
+        command, why, self._holding = command_to_send(
+            self._command,
+            self._command_s,
+            now_s,
+            self.params.command_timeout_s,
+            self._status,
+            not self.monitors[self._status_id].stale(now_s),
+            self._holding,
+        )
+        if why and self._command is not None:
+            self._ep_hold.occur(now_s, reason=why)
+        elif not why:
+            self._ep_hold.clear(now_s)
+        self._transmit(link, command, now_s)
+
+    def _transmit(self, link: BusLink, message: MotionCommand | HlHeartbeat, now_s: float) -> None:
+        frame_id = protocol.spec_for(type(message)).frame_id
+        counter = self._counters[frame_id]
+        self._counters[frame_id] = (counter + 1) % protocol.COUNTER_MODULO
+        arbitration_id, data = protocol.encode(message, counter)
+        if link.send(arbitration_id, data):
+            self._sent += 1
+            self._ep_drops.clear(now_s, total_drops=self._dropped)
+        else:
+            self._dropped += 1
+            self._last_error = f"send dropped: {link.last_send_error}"
+            self._ep_drops.occur(now_s, error=str(link.last_send_error))
+
+    # ---- receiving --------------------------------------------------------------------
+    def _on_message(self, message: can.Message, now_s: float) -> None:
+        self._received += 1
+        if message.is_error_frame:
+            condition = bus_condition(message.arbitration_id, bytes(message.data))
+            if condition is not None:
+                self._set_frame_condition(condition, now_s)
+            return
+        monitor = self.monitors.get(message.arbitration_id)
+        if monitor is None or message.is_extended_id or message.is_remote_frame:
+            return  # another node's traffic
+        try:
+            frame = protocol.decode(message.arbitration_id, message.data, now_s)
+        except Pc104ProtocolError as exc:
+            self._errors[exc.reason] += 1
+            monitor.record_invalid(now_s)
+            self._last_error = str(exc)
+            self._ep_rx[message.arbitration_id].occur(now_s, reason=exc.reason, error=str(exc))
+            return
+        verdict = monitor.update(now_s, frame.counter)
+        episode = self._ep_rx[message.arbitration_id]
+        if verdict is RxVerdict.ACCEPTED:
+            if monitor.error_budget == 0:
+                episode.clear(now_s, message=protocol.SPECS_BY_ID[frame.arbitration_id].name)
+            self._publish(frame)
+        elif verdict is not RxVerdict.RESYNCING or monitor.counts.jumps:
+            name = protocol.SPECS_BY_ID[frame.arbitration_id].name
+            episode.occur(now_s, reason=verdict, message=name, counter=frame.counter)
+
+    def _publish(self, frame: protocol.DecodedFrame) -> None:
+        message, stamp_s = frame.message, frame.received_s
+        if isinstance(message, Pc104Status):
+            self._status = message
+            self.topics.status.publish(message, stamp_s)
+            if self._frame_condition is BusCondition.BUS_OFF:  # traffic proves we are back
+                self._set_frame_condition(BusCondition.ACTIVE, stamp_s)
+            self._ep_link.clear(stamp_s, reconnects=self._reconnects)
+        elif isinstance(message, WheelAngles):
+            self.topics.wheel_angles.publish(message, stamp_s)
+        elif isinstance(message, MotorPulses):
+            self.topics.motor_pulses.publish(message, stamp_s)
+        elif isinstance(message, Inclinometer):
+            self.topics.inclinometer.publish(message, stamp_s)
+        elif isinstance(message, Pc104Heartbeat):
+            if message.protocol_version != PROTOCOL_VERSION:
+                self._last_error = (
+                    f"PC104 speaks protocol {message.protocol_version}, we {PROTOCOL_VERSION}"
+                )
+                self._ep_version.occur(stamp_s, error=self._last_error)
+            self.topics.heartbeat.publish(message, stamp_s)
+
+    def _set_frame_condition(self, condition: BusCondition, now_s: float) -> None:
+        self._frame_condition = condition
+        if condition is BusCondition.ACTIVE:
+            self._ep_bus.clear(now_s)
+        elif condition >= BusCondition.PASSIVE:
+            self._last_error = f"CAN controller {condition.name}"
+            self._ep_bus.occur(now_s, condition=condition.name)
+
+    # ---- bookkeeping ------------------------------------------------------------------
+    def _watch(self, link: BusLink, now_s: float) -> None:
+        stale = self.monitors[self._status_id].stale(now_s)
+        if stale and self._stale_since_s is None:
+            self._stale_since_s = now_s
+            if self.monitors[self._status_id].last_accepted_s is not None:
+                self._ep_stale.occur(now_s, max_age_s=self.params.status_max_age_s)
+        elif not stale and self._stale_since_s is not None:
+            self._stale_since_s = None
+            self._ep_stale.clear(now_s)
+        self._in_rate.update(now_s, self._received)
+        self._out_rate.update(now_s, self._sent)
+        if now_s >= self._next_poll_s:
+            self._next_poll_s = now_s + self.params.bus_state_poll_s
+            try:
+                state = link.bus.state
+            except (can.CanError, NotImplementedError, OSError):
+                state = can.BusState.ACTIVE
+            self._polled_condition = _BUS_STATES.get(state, BusCondition.ACTIVE)
