@@ -112,6 +112,7 @@ class Daemon:
         self._stop_reason = ""
         self._signals_seen = 0
         self._was_healthy = True
+        self._stopping = False
 
     # ---- lifecycle ---------------------------------------------------------------
     async def run(self, duration_s: float | None = None, handle_signals: bool = True) -> RunResult:
@@ -170,12 +171,15 @@ class Daemon:
 
     async def _shut_down(self, root: asyncio.Future[object], result: RunResult) -> RunResult:
         started_s = self.clock()
+        self._stopping = True
         self.notifier.stopping()
         self.notifier.status(f"stopping: {result.reason}")
         log.info("daemon_stopping", reason=result.reason)
         # Command the safe state while the links to the actuators are still up; the
         # lower layers' own command timeouts take over once the drivers are gone.
         self.safe_stop.engage(f"shutdown: {result.reason}")
+        # Periodic senders (the PC104 command) transmit the safe command on their next tick.
+        await asyncio.sleep(2.0 / self.config.rates.pc104_command_hz)
         root.cancel()
         grace_s = self.config.safety.shutdown_grace_s
         done, _ = await asyncio.wait({root}, timeout=grace_s)
@@ -243,6 +247,10 @@ class Daemon:
                     "watchdog_pings_resumed" if healthy else "watchdog_pings_withheld",
                     services=self._service_summary(),
                 )
+            if self._stopping:
+                ctx.beat()
+                await asyncio.sleep(tick_s)
+                continue
             if ping_period_s is not None and healthy and now_s - last_ping_s >= ping_period_s:
                 self.notifier.watchdog()
                 self.watchdog_pings += 1

@@ -257,6 +257,8 @@ class Supervisor:
         if not errors:
             return "ended without an error"
         error = errors[0]
+        while isinstance(error, ExceptionGroup):  # a service's own task group failed
+            error = error.exceptions[0]
         if isinstance(error, PermanentServiceError):
             log.error("service_failed_permanently", service=record.spec.name, error=str(error))
             return f"{PERMANENT_PREFIX}{error}"

@@ -6,9 +6,11 @@ world and the twins, in this process: the clients still talk to them over the sa
 transports they use on the vehicle (TCP, a CAN bus, real ptys), so nothing downstream can
 tell a twin from the hardware.
 
-Drivers are supervised as non-critical services that keep beating while they reconnect:
-whether a *device* is there is a question of input staleness for the safety layer; the
-supervisor's heartbeat answers whether the *software* is alive.
+Drivers keep beating while they reconnect: whether a *device* is there is a question of
+input staleness for the safety layer; the supervisor's heartbeat answers whether the
+*software* is alive. The links that actuate (PC104, actuator boards) are critical
+services: if their software keeps failing, the daemon latches an error; the scanners
+are not, since nothing actuates from them yet.
 """
 
 from __future__ import annotations
@@ -21,10 +23,11 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from appliance.config import VehicleConfig
+from appliance.config.models import CanInterface
 from appliance.logs import get_logger
 from appliance.sim.site import Pose2D
 from appliance.sim.site_file import load_site
-from appliance.sim.vehicle import VehicleParams, VehicleState
+from appliance.sim.vehicle import MotionPattern, VehicleParams, VehicleState
 from appliance.sim.world import SimWorld
 from appliance.supervisor import PermanentServiceError, ServiceContext, ServiceSpec
 from appliance.topics import Topic, TopicRegistry
@@ -41,6 +44,10 @@ from drivers.lms111.client import Lms111Client
 from drivers.lms111.mounted import MountedScan, mount_pose
 from drivers.lms111.session import Lms111ConfigError
 from drivers.lms111.twin import Lms111Twin
+from drivers.pc104.client import Pc104Client
+from drivers.pc104.link import bus_factory
+from drivers.pc104.messages import MotionCommand
+from drivers.pc104.twin import Pc104Twin
 from safety.safe_stop import SafeCommand, SafeStopTarget
 from safety.watchdog import RestartPolicy
 
@@ -59,6 +66,8 @@ class VehicleIO:
     safe_stop_targets: list[SafeStopTarget] = field(default_factory=list)
     world: SimWorld | None = None
     boards: BoardClients | None = None
+    pc104: Pc104Client | None = None
+    pc104_twin: Pc104Twin | None = None
     scanners: dict[str, Lms111Client] = field(default_factory=dict)
     sim_scanners: list[Lms111Twin] = field(default_factory=list)
     board_twins: ActuatorTwins | None = None
@@ -104,6 +113,8 @@ def _service(
     run: Callable[[Callable[[], None]], Awaitable[None]],
     policy: RestartPolicy,
     deadline_s: float,
+    *,
+    critical: bool = False,
 ) -> ServiceSpec:
     async def adapter(ctx: ServiceContext) -> None:
         await run(ctx.beat)
@@ -111,7 +122,7 @@ def _service(
     return ServiceSpec(
         name=name,
         run=adapter,
-        critical=False,
+        critical=critical,
         restart=policy,
         heartbeat_deadline_s=deadline_s,
         startup_grace_s=max(deadline_s, 5.0),
@@ -122,6 +133,7 @@ def build_vehicle_io(config: VehicleConfig, policy: RestartPolicy) -> VehicleIO:
     io = VehicleIO()
     if config.simulation.enabled:
         _build_world(config, io, policy)
+    _build_pc104(config, io, policy)
     _build_scanners(config, io, policy)
     _build_boards(config, io, policy)
     return io
@@ -142,6 +154,63 @@ def _build_world(config: VehicleConfig, io: VehicleIO, policy: RestartPolicy) ->
         await world.run_realtime(on_step=beat)
 
     io.services.append(_service("sim.world", run_world, policy, TWIN_HEARTBEAT_DEADLINE_S))
+
+
+class Pc104SafeStop:
+    """STOP to the PC104: its own PID brings the vehicle to rest and holds it."""
+
+    name = "pc104"
+
+    def __init__(self, client: Pc104Client) -> None:
+        self._client = client
+
+    def command_safe_state(self, command: SafeCommand, reason: str) -> None:
+        self._client.send_command(MotionCommand(MotionPattern.STOP, 0.0, 0.0, 0.0, False))
+
+
+def _build_pc104(config: VehicleConfig, io: VehicleIO, policy: RestartPolicy) -> None:
+    """The PC104 link (critical: it is how the vehicle's own controller hears us)."""
+    client = Pc104Client(config)
+    io.pc104 = client
+    for topic in (
+        client.topics.status,
+        client.topics.wheel_angles,
+        client.topics.motor_pulses,
+        client.topics.inclinometer,
+        client.topics.heartbeat,
+    ):
+        io.topics.register(topic.name, topic)
+    if config.simulation.enabled and io.world is not None:
+        if config.devices.can.interface is not CanInterface.VIRTUAL:
+            raise ValueError(
+                "the built-in simulated vehicle runs its PC104 twin in this process, on "
+                "python-can's virtual bus: set devices.can.interface = 'virtual' (or run "
+                "`dbw sim` and point a socketcan profile at it)"
+            )
+        twin = Pc104Twin(bus_factory(config.devices.can), io.world, step_world=False)
+        io.pc104_twin = twin
+
+        async def run_twin(beat: Callable[[], None]) -> None:
+            await _beating_while(twin.run(), beat)
+
+        io.services.append(_service("sim.pc104", run_twin, policy, TWIN_HEARTBEAT_DEADLINE_S))
+    io.services.append(
+        _service("pc104", client.run, policy, DRIVER_HEARTBEAT_DEADLINE_S, critical=True)
+    )
+    io.safe_stop_targets.append(Pc104SafeStop(client))
+
+
+async def _beating_while(work: Awaitable[None], beat: Callable[[], None]) -> None:
+    """Beat every 0.1 s for as long as ``work`` runs (for twins without a beat hook)."""
+    async with asyncio.TaskGroup() as group:
+        task = group.create_task(_await(work))
+        while not task.done():
+            beat()
+            await asyncio.sleep(0.1)
+
+
+async def _await(work: Awaitable[None]) -> None:
+    await work
 
 
 def _build_scanners(config: VehicleConfig, io: VehicleIO, policy: RestartPolicy) -> None:
@@ -233,7 +302,9 @@ def _build_boards(config: VehicleConfig, io: VehicleIO, policy: RestartPolicy) -
     ):
         io.topics.register(f"board.{name}", client.telemetry)
         io.services.append(
-            _service(f"board.{name}", client.run, policy, DRIVER_HEARTBEAT_DEADLINE_S)
+            _service(
+                f"board.{name}", client.run, policy, DRIVER_HEARTBEAT_DEADLINE_S, critical=True
+            )
         )
     io.safe_stop_targets.append(BoardsSafeStop(boards))
 

@@ -72,7 +72,8 @@ async def test_record_then_replay_gives_back_every_scan(twin: Lms111Twin, tmp_pa
     assert times == sorted(times)
 
     summary = summarize_recording(path)
-    assert (summary.scans, summary.errors, summary.dropped_scans) == (stats.scans, 0, 0)
+    assert (summary.scans, summary.errors) == (stats.scans, 0)
+    assert summary.dropped_scans <= twin.stats.scans_skipped  # only the twin's own skips
     assert summary.truncated is None and 0.8 < summary.duration_s < 1.2
     json.dumps(summary.to_dict())
     line = json.dumps(scan_summary(scans[0]))
@@ -95,7 +96,8 @@ async def test_a_misbehaving_scanner_replays_with_its_errors(
     assert summary.errors == stats.malformed_telegrams >= 3
     assert summary.errors in (twin.stats.corrupted, twin.stats.corrupted - 1)  # last in flight
     assert summary.scans == stats.scans
-    assert summary.dropped_scans == summary.errors
+    # each corrupted scan is a counter gap; the twin may also skip scans itself under load
+    assert summary.errors <= summary.dropped_scans <= summary.errors + twin.stats.scans_skipped
 
 
 async def test_a_truncated_recording_is_reported_after_its_complete_records(
