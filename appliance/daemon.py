@@ -25,7 +25,7 @@ from appliance.control_loop import ControlLoop, HoldSafeCore
 from appliance.logs import get_logger
 from appliance.supervisor import ServiceContext, ServiceSpec, ServiceState, Supervisor
 from appliance.systemd_notify import SystemdNotifier
-from appliance.vehicle_io import VehicleIO, build_vehicle_io, input_ages_s
+from appliance.vehicle_io import VehicleIO, build_vehicle_io, input_ages_s, link_summary
 from safety.safe_stop import SafeCommand, SafeStop
 from safety.watchdog import RestartPolicy
 
@@ -266,6 +266,7 @@ class Daemon:
                     control_overruns=jitter.overruns,
                     control_jitter_p99_ms=round(jitter.jitter_p99_ms, 3),
                     input_ages_s=input_ages_s(self.io, now_s),
+                    links=link_summary(self.io),
                     watchdog_pings=self.watchdog_pings,
                 )
             ctx.beat()

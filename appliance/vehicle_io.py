@@ -309,6 +309,39 @@ def _build_boards(config: VehicleConfig, io: VehicleIO, policy: RestartPolicy) -
     io.safe_stop_targets.append(BoardsSafeStop(boards))
 
 
+def link_summary(io: VehicleIO) -> dict[str, str]:
+    """One short line per device link for the periodic ``heartbeats`` log."""
+    links: dict[str, str] = {}
+    if io.pc104 is not None:
+        h = io.pc104.health()
+        source = h.control_source.name.lower() if h.control_source is not None else "?"
+        links["pc104"] = (
+            f"{'up' if h.connected else 'DOWN'}{' STALE' if h.stale else ''} "
+            f"{h.frames_in_per_s:.0f}/{h.frames_out_per_s:.0f} fps in/out, control={source}, "
+            f"crc={h.crc_errors} counter={h.counter_errors} malformed={h.malformed_frames} "
+            f"drops={h.send_drops} bus={h.bus_condition.name.lower()}"
+        )
+    for side, scanner in io.scanners.items():
+        s = scanner.health
+        links[f"lms111_{side}"] = (
+            f"{s.state} {s.scans_per_s:.1f} scans/s, dropped={s.dropped_scans} "
+            f"malformed={s.malformed_telegrams} reconnects={s.reconnects}"
+        )
+    if io.boards is not None:
+        for name, client in (
+            ("steering", io.boards.steering),
+            ("throttle", io.boards.throttle),
+            ("brake", io.boards.brake),
+            ("panel", io.boards.panel),
+        ):
+            b = client.health()
+            links[f"board.{name}"] = (
+                f"{'up' if b.connected else 'DOWN'}{' STALE' if b.stale else ''} "
+                f"{b.frames_per_s:.0f} fps, crc={b.crc_errors} reconnects={b.reconnects}"
+            )
+    return links
+
+
 def input_ages_s(io: VehicleIO, now_s: float) -> dict[str, float]:
     """Age of every input topic, rounded for logs (inf: never received)."""
     return {
