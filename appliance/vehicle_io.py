@@ -15,9 +15,7 @@ are not, since nothing actuates from them yet.
 
 from __future__ import annotations
 
-import asyncio
 import math
-import time
 from collections.abc import Awaitable, Callable
 from dataclasses import dataclass, field
 from typing import Any
@@ -25,10 +23,9 @@ from typing import Any
 from appliance.config import VehicleConfig
 from appliance.config.models import CanInterface
 from appliance.logs import get_logger
-from appliance.sim.site import Pose2D
-from appliance.sim.site_file import load_site
-from appliance.sim.vehicle import MotionPattern, VehicleParams, VehicleState
+from appliance.sim.vehicle import MotionPattern
 from appliance.sim.world import SimWorld
+from appliance.simulator import Simulator, build_simulator
 from appliance.supervisor import PermanentServiceError, ServiceContext, ServiceSpec
 from appliance.topics import Topic, TopicRegistry
 from drivers.actuators.boards import BoardClients, make_board_clients
@@ -39,22 +36,17 @@ from drivers.actuators.messages import (
     SteeringMode,
     ThrottleCommand,
 )
-from drivers.actuators.twin_set import ActuatorTwins
 from drivers.lms111.client import Lms111Client
-from drivers.lms111.mounted import MountedScan, mount_pose
+from drivers.lms111.mounted import MountedScan
 from drivers.lms111.session import Lms111ConfigError
-from drivers.lms111.twin import Lms111Twin
 from drivers.pc104.client import Pc104Client
-from drivers.pc104.link import bus_factory
 from drivers.pc104.messages import MotionCommand
-from drivers.pc104.twin import Pc104Twin
 from safety.safe_stop import SafeCommand, SafeStopTarget
 from safety.watchdog import RestartPolicy
 
 log = get_logger("vehicle_io")
 
 DRIVER_HEARTBEAT_DEADLINE_S = 1.0
-TWIN_HEARTBEAT_DEADLINE_S = 1.0
 
 
 @dataclass
@@ -65,12 +57,10 @@ class VehicleIO:
     services: list[ServiceSpec] = field(default_factory=list)
     safe_stop_targets: list[SafeStopTarget] = field(default_factory=list)
     world: SimWorld | None = None
+    simulator: Simulator | None = None
     boards: BoardClients | None = None
     pc104: Pc104Client | None = None
-    pc104_twin: Pc104Twin | None = None
     scanners: dict[str, Lms111Client] = field(default_factory=dict)
-    sim_scanners: list[Lms111Twin] = field(default_factory=list)
-    board_twins: ActuatorTwins | None = None
     _closers: list[Callable[[], None]] = field(default_factory=list)
 
     def close(self) -> None:
@@ -132,28 +122,21 @@ def _service(
 def build_vehicle_io(config: VehicleConfig, policy: RestartPolicy) -> VehicleIO:
     io = VehicleIO()
     if config.simulation.enabled:
-        _build_world(config, io, policy)
+        if config.devices.can.interface is not CanInterface.VIRTUAL:
+            raise ValueError(
+                "the built-in simulated vehicle runs its PC104 twin in this process, on "
+                "python-can's virtual bus: set devices.can.interface = 'virtual' (or run "
+                "`dbw sim` and point a socketcan profile at it)"
+            )
+        simulator = build_simulator(config, policy, can=config.devices.can)
+        io.simulator = simulator
+        io.world = simulator.world
+        io.services.extend(simulator.services)
+        io._closers.append(simulator.close)
     _build_pc104(config, io, policy)
     _build_scanners(config, io, policy)
     _build_boards(config, io, policy)
     return io
-
-
-def _build_world(config: VehicleConfig, io: VehicleIO, policy: RestartPolicy) -> None:
-    sim = config.simulation
-    world = SimWorld(
-        VehicleParams.from_config(config),
-        initial=VehicleState(
-            x_m=sim.start_x_m, y_m=sim.start_y_m, yaw_rad=math.radians(sim.start_yaw_deg)
-        ),
-        step_hz=config.simulation.world_step_hz,
-    )
-    io.world = world
-
-    async def run_world(beat: Callable[[], None]) -> None:
-        await world.run_realtime(on_step=beat)
-
-    io.services.append(_service("sim.world", run_world, policy, TWIN_HEARTBEAT_DEADLINE_S))
 
 
 class Pc104SafeStop:
@@ -180,37 +163,10 @@ def _build_pc104(config: VehicleConfig, io: VehicleIO, policy: RestartPolicy) ->
         client.topics.heartbeat,
     ):
         io.topics.register(topic.name, topic)
-    if config.simulation.enabled and io.world is not None:
-        if config.devices.can.interface is not CanInterface.VIRTUAL:
-            raise ValueError(
-                "the built-in simulated vehicle runs its PC104 twin in this process, on "
-                "python-can's virtual bus: set devices.can.interface = 'virtual' (or run "
-                "`dbw sim` and point a socketcan profile at it)"
-            )
-        twin = Pc104Twin(bus_factory(config.devices.can), io.world, step_world=False)
-        io.pc104_twin = twin
-
-        async def run_twin(beat: Callable[[], None]) -> None:
-            await _beating_while(twin.run(), beat)
-
-        io.services.append(_service("sim.pc104", run_twin, policy, TWIN_HEARTBEAT_DEADLINE_S))
     io.services.append(
         _service("pc104", client.run, policy, DRIVER_HEARTBEAT_DEADLINE_S, critical=True)
     )
     io.safe_stop_targets.append(Pc104SafeStop(client))
-
-
-async def _beating_while(work: Awaitable[None], beat: Callable[[], None]) -> None:
-    """Beat every 0.1 s for as long as ``work`` runs (for twins without a beat hook)."""
-    async with asyncio.TaskGroup() as group:
-        task = group.create_task(_await(work))
-        while not task.done():
-            beat()
-            await asyncio.sleep(0.1)
-
-
-async def _await(work: Awaitable[None]) -> None:
-    await work
 
 
 def _build_scanners(config: VehicleConfig, io: VehicleIO, policy: RestartPolicy) -> None:
@@ -219,31 +175,8 @@ def _build_scanners(config: VehicleConfig, io: VehicleIO, policy: RestartPolicy)
         ("left", config.devices.lms111_left, config.geometry.scanner_left_mount),
         ("right", config.devices.lms111_right, config.geometry.scanner_right_mount),
     )
-    site = load_site(config.simulation.site) if config.simulation.enabled else None
-    world = io.world
-    for index, (side, endpoint, mount) in enumerate(sides):
+    for side, endpoint, mount in sides:
         name = f"lms111_{side}"
-        if site is not None and world is not None:
-
-            def platform_pose(_t_s: float, world: SimWorld = world) -> Pose2D:
-                state = world.state
-                return Pose2D(state.x_m, state.y_m, state.platform_yaw_rad)
-
-            twin = Lms111Twin(
-                site,
-                mount_pose(mount),
-                platform_pose,
-                name=f"sim.{name}",
-                serial_number=0x0142_0001 + index,
-                range_bias_m=config.simulation.scanner_range_bias_m * (1 if index else -1),
-                seed=index,
-                host=endpoint.host,
-                port=endpoint.port,
-                scan_frequency_hz=endpoint.scan_frequency_hz,
-                angular_resolution_deg=endpoint.angular_resolution_deg,
-            )
-            io.sim_scanners.append(twin)
-            io.services.append(_service(f"sim.{name}", twin.run, policy, TWIN_HEARTBEAT_DEADLINE_S))
         topic: Topic[MountedScan] = Topic(f"scan.{side}")
         io.topics.register(topic.name, topic)
         client = Lms111Client(
@@ -277,21 +210,8 @@ def _permanent_on_config_error(
 
 
 def _build_boards(config: VehicleConfig, io: VehicleIO, policy: RestartPolicy) -> None:
-    resolve = None
-    if config.simulation.enabled:
-        twins = ActuatorTwins.from_config(config, io.world)
-        io.board_twins = twins
-        io._closers.append(twins.close)
-        resolve = twins.port_path
-
-        async def run_twins(beat: Callable[[], None]) -> None:
-            period_s = twins.steering.telemetry_period_s
-            while True:
-                twins.step(time.monotonic())
-                beat()
-                await asyncio.sleep(period_s)
-
-        io.services.append(_service("sim.boards", run_twins, policy, TWIN_HEARTBEAT_DEADLINE_S))
+    twins = io.simulator.board_twins if io.simulator is not None else None
+    resolve = twins.port_path if twins is not None else None
     boards = make_board_clients(config, resolve, beat_while_reconnecting=True)
     io.boards = boards
     for name, client in (

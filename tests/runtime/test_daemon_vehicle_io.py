@@ -23,17 +23,19 @@ async def test_board_inputs_stay_fresh_and_a_replugged_board_recovers() -> None:
     daemon = Daemon(load_config("sim"))
     io = daemon.io
     assert io.boards is not None
-    assert io.board_twins is not None
+    assert io.simulator is not None
+    assert io.simulator.board_twins is not None
+    board_twins = io.simulator.board_twins
     run = asyncio.ensure_future(daemon.run(handle_signals=False))
     try:
         loop = asyncio.get_running_loop()
         await wait_until(lambda: all(age < 0.1 for age in io.topics.ages_s(loop.time()).values()))
         assert set(io.topics.ages_s(0.0)) >= {"board.steering", "board.brake", "board.panel"}
 
-        io.board_twins.brake.unplug()
+        board_twins.brake.unplug()
         await wait_until(lambda: io.boards is not None and io.boards.brake.is_stale(loop.time()))
         assert daemon.supervisor.latched_error is None
-        io.board_twins.brake.replug()
+        board_twins.brake.replug()
         await wait_until(
             lambda: io.boards is not None and not io.boards.brake.is_stale(loop.time())
         )
@@ -83,9 +85,8 @@ async def test_simulated_scanners_see_the_launcher_ahead() -> None:
 
 async def test_scanner_refusing_its_configuration_is_given_up_without_a_loop() -> None:
     daemon = Daemon(load_config("sim"))
-    twins = [t for t in daemon.io.sim_scanners if t.name == "sim.lms111_right"]
-    assert len(twins) == 1
-    twin = twins[0]
+    assert daemon.io.simulator is not None
+    twin = daemon.io.simulator.scanner_twins["right"]
     twin.faults.fail_commands = {"mLMPsetscancfg": 0x5}  # invalid data
     run = asyncio.ensure_future(daemon.run(handle_signals=False))
     try:

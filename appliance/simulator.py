@@ -1,0 +1,146 @@
+"""The built-in simulated vehicle: one world and the twins of every device.
+
+The same assembly serves two uses. ``dbw run --config sim`` runs it inside the daemon
+(the PC104 twin on python-can's in-process ``virtual`` bus, so no kernel support is
+needed); ``dbw sim`` runs it on its own, as separate endpoints a daemon on another
+process connects to exactly as to hardware: LMS111s on TCP ports, the PC104 on a
+SocketCAN interface (vcan), the actuator boards on pseudo-terminals.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import math
+import time
+from collections.abc import Awaitable, Callable
+from dataclasses import dataclass, field
+
+from appliance.config import VehicleConfig
+from appliance.config.models import CanEndpoint
+from appliance.sim.site import Pose2D
+from appliance.sim.site_file import load_site
+from appliance.sim.vehicle import VehicleParams, VehicleState
+from appliance.sim.world import SimWorld
+from appliance.supervisor import ServiceContext, ServiceSpec
+from drivers.actuators.twin_set import ActuatorTwins
+from drivers.lms111.mounted import mount_pose
+from drivers.lms111.twin import Lms111Twin
+from drivers.pc104.link import bus_factory
+from drivers.pc104.twin import Pc104Twin
+from safety.watchdog import RestartPolicy
+
+TWIN_HEARTBEAT_DEADLINE_S = 1.0
+
+
+@dataclass
+class Simulator:
+    world: SimWorld
+    scanner_twins: dict[str, Lms111Twin] = field(default_factory=dict)
+    pc104_twin: Pc104Twin | None = None
+    board_twins: ActuatorTwins | None = None
+    services: list[ServiceSpec] = field(default_factory=list)
+
+    def close(self) -> None:
+        if self.board_twins is not None:
+            self.board_twins.close()
+
+
+def twin_service(
+    name: str, run: Callable[[Callable[[], None]], Awaitable[None]], policy: RestartPolicy
+) -> ServiceSpec:
+    async def adapter(ctx: ServiceContext) -> None:
+        await run(ctx.beat)
+
+    return ServiceSpec(
+        name=name,
+        run=adapter,
+        critical=False,
+        restart=policy,
+        heartbeat_deadline_s=TWIN_HEARTBEAT_DEADLINE_S,
+    )
+
+
+def build_simulator(
+    config: VehicleConfig,
+    policy: RestartPolicy,
+    *,
+    can: CanEndpoint | None = None,
+    pty_directory: str | None = None,
+) -> Simulator:
+    """Every twin of ``config``'s devices around one world; ``can=None`` leaves out the PC104."""
+    sim = config.simulation
+    world = SimWorld(
+        VehicleParams.from_config(config),
+        initial=VehicleState(
+            x_m=sim.start_x_m, y_m=sim.start_y_m, yaw_rad=math.radians(sim.start_yaw_deg)
+        ),
+        step_hz=sim.world_step_hz,
+    )
+    simulator = Simulator(world)
+
+    async def run_world(beat: Callable[[], None]) -> None:
+        await world.run_realtime(on_step=beat)
+
+    simulator.services.append(twin_service("sim.world", run_world, policy))
+
+    if can is not None:
+        pc104 = Pc104Twin(bus_factory(can), world, step_world=False)
+        simulator.pc104_twin = pc104
+
+        async def run_pc104(beat: Callable[[], None]) -> None:
+            await _beating_while(pc104.run(), beat)
+
+        simulator.services.append(twin_service("sim.pc104", run_pc104, policy))
+
+    site = load_site(sim.site)
+
+    def platform_pose(_t_s: float) -> Pose2D:
+        state = world.state
+        return Pose2D(state.x_m, state.y_m, state.platform_yaw_rad)
+
+    sides = (
+        ("left", config.devices.lms111_left, config.geometry.scanner_left_mount),
+        ("right", config.devices.lms111_right, config.geometry.scanner_right_mount),
+    )
+    for index, (side, endpoint, mount) in enumerate(sides):
+        twin = Lms111Twin(
+            site,
+            mount_pose(mount),
+            platform_pose,
+            name=f"sim.lms111_{side}",
+            serial_number=0x0142_0001 + index,
+            range_bias_m=sim.scanner_range_bias_m * (1 if index else -1),
+            seed=index,
+            host=endpoint.host,
+            port=endpoint.port,
+            scan_frequency_hz=endpoint.scan_frequency_hz,
+            angular_resolution_deg=endpoint.angular_resolution_deg,
+        )
+        simulator.scanner_twins[side] = twin
+        simulator.services.append(twin_service(f"sim.lms111_{side}", twin.run, policy))
+
+    boards = ActuatorTwins.from_config(config, world, directory=pty_directory)
+    simulator.board_twins = boards
+
+    async def run_boards(beat: Callable[[], None]) -> None:
+        period_s = boards.steering.telemetry_period_s
+        while True:
+            boards.step(time.monotonic())
+            beat()
+            await asyncio.sleep(period_s)
+
+    simulator.services.append(twin_service("sim.boards", run_boards, policy))
+    return simulator
+
+
+async def _beating_while(work: Awaitable[None], beat: Callable[[], None]) -> None:
+    """Beat every 0.1 s for as long as ``work`` runs (for twins without a beat hook)."""
+    async with asyncio.TaskGroup() as group:
+        task = group.create_task(_await(work))
+        while not task.done():
+            beat()
+            await asyncio.sleep(0.1)
+
+
+async def _await(work: Awaitable[None]) -> None:
+    await work
