@@ -13,7 +13,9 @@ import click
 
 from appliance import __version__
 from appliance.cli_lms111 import lms111
+from appliance.cli_sim import sim
 from appliance.config import BUILTIN_PROFILES, ConfigError, VehicleConfig, load_config
+from appliance.config.loader import to_toml
 from appliance.logs import LEVELS, configure_logging
 
 EXIT_CONFIG_ERROR = 2
@@ -93,27 +95,11 @@ def config_show(file: str | None, as_json: bool) -> None:
     if as_json:
         click.echo(json.dumps(data, indent=2))
         return
-    click.echo(_to_toml(data))
-
-
-def _to_toml(data: dict[str, object], prefix: str = "") -> str:
-    """Render the effective config in TOML so it can be copied into a vehicle file."""
-    scalars = {k: v for k, v in data.items() if not isinstance(v, dict)}
-    tables = {k: v for k, v in data.items() if isinstance(v, dict)}
-    lines = []
-    if prefix and scalars:
-        lines.append(f"[{prefix}]")
-    for key, value in scalars.items():
-        lines.append(f"{key} = {json.dumps(value)}")
-    out = "\n".join(lines)
-    for key, value in tables.items():
-        assert isinstance(value, dict)
-        sub = _to_toml(value, f"{prefix}.{key}" if prefix else key)
-        out = f"{out}\n\n{sub}" if out else sub
-    return out
+    click.echo(to_toml(data))
 
 
 cli.add_command(lms111)
+cli.add_command(sim)
 
 
 def main() -> None:

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import asyncio
 import math
+import os
 import time
 from collections.abc import Awaitable, Callable
 from dataclasses import dataclass, field
@@ -119,6 +120,8 @@ def build_simulator(
         simulator.scanner_twins[side] = twin
         simulator.services.append(twin_service(f"sim.lms111_{side}", twin.run, policy))
 
+    if pty_directory is not None:
+        os.makedirs(pty_directory, exist_ok=True)
     boards = ActuatorTwins.from_config(config, world, directory=pty_directory)
     simulator.board_twins = boards
 

@@ -9,6 +9,7 @@ allowed range read from the model itself, so the message can never disagree with
 from __future__ import annotations
 
 import difflib
+import json
 import tomllib
 from dataclasses import dataclass
 from importlib import resources
@@ -167,3 +168,20 @@ def _allowed(info: FieldInfo) -> str:
     if choices:
         return ", ".join(repr(member.value) for member in choices.values())
     return ""
+
+
+def to_toml(data: dict[str, object], prefix: str = "") -> str:
+    """Render the effective config in TOML so it can be copied into a vehicle file."""
+    scalars = {k: v for k, v in data.items() if not isinstance(v, dict)}
+    tables = {k: v for k, v in data.items() if isinstance(v, dict)}
+    lines = []
+    if prefix and scalars:
+        lines.append(f"[{prefix}]")
+    for key, value in scalars.items():
+        lines.append(f"{key} = {json.dumps(value)}")
+    out = "\n".join(lines)
+    for key, value in tables.items():
+        assert isinstance(value, dict)
+        sub = to_toml(value, f"{prefix}.{key}" if prefix else key)
+        out = f"{out}\n\n{sub}" if out else sub
+    return out

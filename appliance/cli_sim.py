@@ -1,0 +1,125 @@
+"""`dbw sim`: the simulated vehicle as separate endpoints, for a daemon in another process.
+
+It starts the world and every twin, prints where each device can be reached, and writes
+a vehicle file that points `dbw run` at them: the daemon then runs exactly as on the
+vehicle (simulation disabled), over TCP, SocketCAN and real ttys.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import signal
+import sys
+from pathlib import Path
+
+import click
+
+from appliance.config import ConfigError, VehicleConfig, load_config
+from appliance.config.loader import to_toml
+from appliance.config.models import CanEndpoint, CanInterface
+from appliance.logs import get_logger
+from appliance.simulator import Simulator, build_simulator
+from appliance.supervisor import Supervisor
+from safety.watchdog import RestartPolicy
+
+log = get_logger("sim")
+
+BOARDS = ("steering", "throttle", "brake", "panel")
+
+
+def daemon_config(config: VehicleConfig, simulator: Simulator, can: CanEndpoint | None) -> str:
+    """A vehicle file for `dbw run` that reaches this simulator's endpoints."""
+    data = config.model_dump(mode="json")
+    data["name"] = f"{config.name}-via-dbw-sim"
+    data["simulation"]["enabled"] = False
+    assert simulator.board_twins is not None
+    for board in BOARDS:
+        path = simulator.board_twins.port_path(f"sim://{board}")
+        data["devices"][f"{board}_serial"]["port"] = path
+    if can is not None:
+        data["devices"]["can"]["interface"] = can.interface.value
+        data["devices"]["can"]["channel"] = can.channel
+    header = (
+        "# Written by `dbw sim`: run `dbw run --config THIS_FILE` in another terminal.\n"
+        "# Valid while that `dbw sim` runs (the serial ports are its pseudo-terminals).\n"
+    )
+    return header + to_toml(data) + "\n"
+
+
+async def run_simulator(
+    config: VehicleConfig,
+    can: CanEndpoint | None,
+    pty_directory: str | None,
+    write_config: Path | None,
+    duration_s: float | None,
+) -> int:
+    policy = RestartPolicy()
+    simulator = build_simulator(config, policy, can=can, pty_directory=pty_directory)
+    stop = asyncio.Event()
+    loop = asyncio.get_running_loop()
+    for signum in (signal.SIGTERM, signal.SIGINT):
+        loop.add_signal_handler(signum, stop.set)
+    supervisor = Supervisor(simulator.services)
+    root = asyncio.create_task(supervisor.run(), name="simulator")
+    try:
+        await asyncio.wait_for(supervisor.wait_critical_up(), 5.0)
+        assert simulator.board_twins is not None
+        left, right = config.devices.lms111_left, config.devices.lms111_right
+        endpoints = {
+            "lms111_left": f"{left.host}:{left.port}",
+            "lms111_right": f"{right.host}:{right.port}",
+            "pc104": f"{can.interface.value}:{can.channel}"
+            if can
+            else "not simulated (no --can-channel)",
+            **{
+                f"{board}_serial": simulator.board_twins.port_path(f"sim://{board}")
+                for board in BOARDS
+            },
+        }
+        for name, where in endpoints.items():
+            click.echo(f"{name:>16}: {where}")
+        if write_config is not None:
+            text = daemon_config(config, simulator, can)
+            await asyncio.to_thread(write_config.write_text, text, encoding="utf-8")
+            click.echo(f"{'daemon config':>16}: {write_config}  (dbw run --config {write_config})")
+        sys.stdout.flush()
+        log.info("simulator_ready", endpoints=endpoints)
+        with contextlib.suppress(TimeoutError):
+            await asyncio.wait_for(stop.wait(), duration_s)
+        return 0
+    finally:
+        root.cancel()
+        with contextlib.suppress(asyncio.CancelledError):
+            await asyncio.wait_for(root, 2.0)
+        simulator.close()
+
+
+@click.command()
+@click.option("--config", "config_name", metavar="FILE|PROFILE", default="sim", show_default=True)
+@click.option(
+    "--can-channel",
+    default=None,
+    help="SocketCAN interface for the PC104 twin (e.g. vcan0). Without it the PC104 is not "
+    "simulated: python-can's virtual bus does not cross processes.",
+)
+@click.option("--pty-dir", type=click.Path(file_okay=False), default=None)
+@click.option("--write-config", type=click.Path(dir_okay=False, path_type=Path), default=None)
+@click.option("--duration-s", type=click.FloatRange(min=0.0, min_open=True), default=None)
+def sim(
+    config_name: str,
+    can_channel: str | None,
+    pty_dir: str | None,
+    write_config: Path | None,
+    duration_s: float | None,
+) -> None:
+    """Run the simulated vehicle and print its endpoints (and a config for `dbw run`)."""
+    try:
+        config = load_config(config_name)
+    except ConfigError as exc:
+        click.echo(exc.render(), err=True)
+        sys.exit(2)
+    can = (
+        CanEndpoint(interface=CanInterface.SOCKETCAN, channel=can_channel) if can_channel else None
+    )
+    sys.exit(asyncio.run(run_simulator(config, can, pty_dir, write_config, duration_s)))
