@@ -164,7 +164,7 @@ async def test_client_and_twin_process_over_vcan(vcan_channel: str, tmp_path: Pa
         return f"client: {client.health()}; twin log tail: {twin_log.read_text()[-1500:]}"
 
     try:
-        await wait_until(lambda: client.health().peer_ready, 15.0, "the twin process ready", detail)
+        await wait_until(lambda: client.health().peer_ready, 40.0, "the twin process ready", detail)
         await drive_until_moving(client, detail)
         client.send_command(MotionCommand.stop())
 
