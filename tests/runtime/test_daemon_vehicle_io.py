@@ -7,6 +7,7 @@ import asyncio
 from appliance.config import load_config
 from appliance.daemon import Daemon
 from appliance.supervisor import ServiceState
+from appliance.vehicle_io import link_summary
 
 
 async def wait_until(predicate: object, timeout_s: float = 5.0) -> None:
@@ -99,3 +100,43 @@ async def test_scanner_refusing_its_configuration_is_given_up_without_a_loop() -
     finally:
         daemon.request_stop("test over")
         await asyncio.wait_for(run, 3.0)
+
+
+async def test_pc104_faults_are_reported_and_survived_by_the_daemon() -> None:
+    daemon = Daemon(load_config("sim"))
+    io = daemon.io
+    assert io.simulator is not None
+    assert io.pc104 is not None
+    twin = io.simulator.pc104_twin
+    assert twin is not None
+    client = io.pc104
+    run = asyncio.ensure_future(daemon.run(handle_signals=False))
+    try:
+        await wait_until(lambda: not client.health().stale)
+        # The PC104 stops talking: stale within the age limit, the daemon keeps running.
+        twin.faults.drop_all = True
+        await wait_until(lambda: client.health().stale, 1.0)
+        twin.faults.drop_all = False
+        await wait_until(lambda: not client.health().stale)
+        # Corrupted frames are counted, the link stays up.
+        twin.faults.bad_crc = True
+        await wait_until(lambda: client.health().crc_errors >= 5)
+        twin.faults.bad_crc = False
+        await wait_until(lambda: not client.health().stale)
+        # A stuck counter is counted.
+        twin.faults.stuck_counter = True
+        await wait_until(lambda: client.health().counter_errors >= 3)
+        twin.faults.stuck_counter = False
+        # The cab operator takes over: the status says so.
+        twin.faults.cab_control = True
+        await wait_until(lambda: "control=cab" in link_summary(io)["pc104"])
+        twin.faults.cab_control = False
+        # The controller reboots: counters resync, the link comes back.
+        twin.restart()
+        await wait_until(lambda: not client.health().stale, 3.0)
+        assert daemon.supervisor.latched_error is None
+        assert daemon.supervisor.records["pc104"].budget.total_restarts == 0
+    finally:
+        daemon.request_stop("test over")
+        result = await asyncio.wait_for(run, 3.0)
+    assert result.exit_code == 0
