@@ -22,7 +22,7 @@ from appliance.sim.site import Pose2D
 from appliance.sim.site_file import load_site
 from appliance.sim.vehicle import VehicleParams, VehicleState
 from appliance.sim.world import SimWorld
-from appliance.supervisor import ServiceContext, ServiceSpec
+from appliance.supervisor import ServiceSpec, beating_service
 from drivers.actuators.twin_set import ActuatorTwins
 from drivers.lms111.mounted import mount_pose
 from drivers.lms111.twin import Lms111Twin
@@ -49,16 +49,7 @@ class Simulator:
 def twin_service(
     name: str, run: Callable[[Callable[[], None]], Awaitable[None]], policy: RestartPolicy
 ) -> ServiceSpec:
-    async def adapter(ctx: ServiceContext) -> None:
-        await run(ctx.beat)
-
-    return ServiceSpec(
-        name=name,
-        run=adapter,
-        critical=False,
-        restart=policy,
-        heartbeat_deadline_s=TWIN_HEARTBEAT_DEADLINE_S,
-    )
+    return beating_service(name, run, policy, TWIN_HEARTBEAT_DEADLINE_S)
 
 
 def build_simulator(

@@ -109,6 +109,30 @@ class ServiceSpec:
             )
 
 
+def beating_service(
+    name: str,
+    run: Callable[[Callable[[], None]], Awaitable[None]],
+    policy: RestartPolicy,
+    deadline_s: float,
+    *,
+    critical: bool = False,
+    startup_grace_s: float | None = None,
+) -> ServiceSpec:
+    """A service from a driver's ``run(beat)``: drivers know nothing of the supervisor."""
+
+    async def adapter(ctx: ServiceContext) -> None:
+        await run(ctx.beat)
+
+    return ServiceSpec(
+        name=name,
+        run=adapter,
+        critical=critical,
+        restart=policy,
+        heartbeat_deadline_s=deadline_s,
+        startup_grace_s=startup_grace_s,
+    )
+
+
 @dataclass
 class ServiceRecord:
     spec: ServiceSpec

@@ -26,7 +26,7 @@ from appliance.logs import get_logger
 from appliance.sim.vehicle import MotionPattern
 from appliance.sim.world import SimWorld
 from appliance.simulator import Simulator, build_simulator
-from appliance.supervisor import PermanentServiceError, ServiceContext, ServiceSpec
+from appliance.supervisor import PermanentServiceError, ServiceSpec, beating_service
 from appliance.topics import Topic, TopicRegistry
 from drivers.actuators.boards import BoardClients, make_board_clients
 from drivers.actuators.client import ActuatorClient
@@ -106,16 +106,9 @@ def _service(
     *,
     critical: bool = False,
 ) -> ServiceSpec:
-    async def adapter(ctx: ServiceContext) -> None:
-        await run(ctx.beat)
-
-    return ServiceSpec(
-        name=name,
-        run=adapter,
-        critical=critical,
-        restart=policy,
-        heartbeat_deadline_s=deadline_s,
-        startup_grace_s=max(deadline_s, 5.0),
+    # A device may take a while to answer at start-up; the client beats while it waits.
+    return beating_service(
+        name, run, policy, deadline_s, critical=critical, startup_grace_s=max(deadline_s, 5.0)
     )
 
 

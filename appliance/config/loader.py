@@ -11,6 +11,8 @@ from __future__ import annotations
 import difflib
 import json
 import tomllib
+import types
+import typing
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
@@ -93,59 +95,68 @@ def parse_config(text: str, source: str = "<config>") -> VehicleConfig:
         raise ConfigError(source, explain(exc)) from None
 
 
-def explain(exc: ValidationError) -> list[ConfigProblem]:
+def explain(exc: ValidationError, root: type[BaseModel] = VehicleConfig) -> list[ConfigProblem]:
+    """One problem per validation error of ``root`` (a vehicle file, a site file, ...)."""
     problems = []
     for error in exc.errors(include_url=False):
         loc = tuple(error["loc"])
-        field = ".".join(str(part) for part in loc)
-        kind = error["type"]
-        if kind == "extra_forbidden":
-            problems.append(ConfigProblem(field, _unknown_field_message(loc)))
+        field = _toml_path(loc)
+        if error["type"] == "extra_forbidden":
+            problems.append(ConfigProblem(field, _unknown_field_message(loc, root)))
             continue
-        message = error["msg"]
-        if message.startswith("Value error, "):
-            message = message.removeprefix("Value error, ")
-        info = _field_info(loc)
-        allowed = _allowed(info) if info is not None else ""
-        if kind != "missing" and "input" in error and not isinstance(error["input"], dict):
-            message += f" (got {error['input']!r})"
+        message = str(error["msg"]).removeprefix("Value error, ")
+        if error["type"] != "missing" and not isinstance(error.get("input"), dict | list):
+            message += f" (got {error.get('input')!r})"
+        _, info = _walk(loc, root)
+        allowed = "" if error["type"] == "missing" or info is None else _allowed(info)
         if allowed:
             message += f"; allowed: {allowed}"
         problems.append(ConfigProblem(field, message))
     return problems
 
 
-def _walk(loc: tuple[Any, ...]) -> tuple[type[BaseModel] | None, FieldInfo | None]:
-    """Follow a validation error location through the models to the field it names."""
-    model: type[BaseModel] | None = VehicleConfig
+def _toml_path(loc: tuple[Any, ...]) -> str:
+    path = ""
+    for part in loc:
+        path += f"[{part}]" if isinstance(part, int) else (f".{part}" if path else str(part))
+    return path
+
+
+def _model_of(annotation: Any) -> type[BaseModel] | None:
+    """The model inside ``X``, ``X | None`` or ``tuple[X, ...]``, if any."""
+    if isinstance(annotation, type) and issubclass(annotation, BaseModel):
+        return annotation
+    if isinstance(annotation, types.UnionType) or typing.get_origin(annotation) is not None:
+        for arg in typing.get_args(annotation):
+            model = _model_of(arg)
+            if model is not None:
+                return model
+    return None
+
+
+def _walk(
+    loc: tuple[Any, ...], root: type[BaseModel]
+) -> tuple[type[BaseModel] | None, FieldInfo | None]:
+    """Follow an error location through the models: (the parent model, the field info)."""
+    model: type[BaseModel] | None = root
     info: FieldInfo | None = None
     for part in loc:
-        if model is None or not isinstance(part, str) or part not in model.model_fields:
-            return model, None
+        if isinstance(part, int):
+            continue
+        if model is None or part not in model.model_fields:
+            return None, None
         info = model.model_fields[part]
-        annotation = info.annotation
-        model = (
-            annotation
-            if isinstance(annotation, type) and issubclass(annotation, BaseModel)
-            else None
-        )
+        model = _model_of(info.annotation)
     return model, info
 
 
-def _field_info(loc: tuple[Any, ...]) -> FieldInfo | None:
-    return _walk(loc)[1]
-
-
-def _unknown_field_message(loc: tuple[Any, ...]) -> str:
-    parent, _ = _walk(loc[:-1])
+def _unknown_field_message(loc: tuple[Any, ...], root: type[BaseModel]) -> str:
+    parent, _ = _walk(loc[:-1], root)
     known = sorted(parent.model_fields) if parent is not None else []
     suggestion = difflib.get_close_matches(str(loc[-1]), known, n=1)
-    message = "unknown field"
     if suggestion:
-        message += f"; did you mean {suggestion[0]!r}?"
-    elif known:
-        message += "; known fields here: " + ", ".join(known)
-    return message
+        return f"unknown field; did you mean {suggestion[0]!r}?"
+    return "unknown field" + ("; known fields here: " + ", ".join(known) if known else "")
 
 
 def _allowed(info: FieldInfo) -> str:
@@ -163,8 +174,7 @@ def _allowed(info: FieldInfo) -> str:
         return lower + upper.removeprefix("value")
     if lower or upper:
         return lower or upper
-    annotation = info.annotation
-    choices = getattr(annotation, "__members__", None)
+    choices = getattr(info.annotation, "__members__", None)
     if choices:
         return ", ".join(repr(member.value) for member in choices.values())
     return ""

@@ -11,18 +11,14 @@ default), and every problem is reported with its field path in TOML notation, e.
 
 from __future__ import annotations
 
-import difflib
 import tomllib
-import types
-import typing
 from importlib import resources
 from pathlib import Path
-from typing import Any
 
-import annotated_types
-from pydantic import BaseModel, ValidationError
+from pydantic import ValidationError
 
 from appliance.config import ConfigError, ConfigProblem
+from appliance.config.loader import explain
 from appliance.sim.builders import (
     LauncherSpec,
     PalletAreaSpec,
@@ -111,84 +107,5 @@ def parse_site(text: str, source: str = "<site>", default_name: str = "") -> Sit
     try:
         site_file = SiteFile.model_validate(data)
     except ValidationError as exc:
-        raise SiteError(source, _explain(exc)) from None
+        raise SiteError(source, explain(exc, SiteFile)) from None
     return site_file.build()
-
-
-def _explain(exc: ValidationError) -> list[ConfigProblem]:
-    problems = []
-    for error in exc.errors(include_url=False):
-        loc = tuple(error["loc"])
-        field = _toml_path(loc)
-        if error["type"] == "extra_forbidden":
-            problems.append(ConfigProblem(field, _unknown_field_message(loc)))
-            continue
-        message = str(error["msg"]).removeprefix("Value error, ")
-        if error["type"] != "missing" and not isinstance(error.get("input"), dict | list):
-            message += f" (got {error.get('input')!r})"
-        allowed = "" if error["type"] == "missing" else _allowed(loc)
-        if allowed:
-            message += f"; allowed: {allowed}"
-        problems.append(ConfigProblem(field, message))
-    return problems
-
-
-def _toml_path(loc: tuple[Any, ...]) -> str:
-    path = ""
-    for part in loc:
-        path += f"[{part}]" if isinstance(part, int) else (f".{part}" if path else str(part))
-    return path
-
-
-def _model_of(annotation: Any) -> type[BaseModel] | None:
-    """The model inside ``X``, ``X | None`` or ``tuple[X, ...]``, if any."""
-    if isinstance(annotation, type) and issubclass(annotation, BaseModel):
-        return annotation
-    if isinstance(annotation, types.UnionType) or typing.get_origin(annotation) is not None:
-        for arg in typing.get_args(annotation):
-            model = _model_of(arg)
-            if model is not None:
-                return model
-    return None
-
-
-def _walk(loc: tuple[Any, ...]) -> tuple[type[BaseModel] | None, Any]:
-    """Follow an error location through the models: (the parent model, the field info)."""
-    model: type[BaseModel] | None = SiteFile
-    info: Any = None
-    for part in loc:
-        if isinstance(part, int):
-            continue
-        if model is None or part not in model.model_fields:
-            return None, None
-        info = model.model_fields[part]
-        model = _model_of(info.annotation)
-    return model, info
-
-
-def _unknown_field_message(loc: tuple[Any, ...]) -> str:
-    parent, _ = _walk(loc[:-1])
-    known = sorted(parent.model_fields) if parent is not None else []
-    suggestion = difflib.get_close_matches(str(loc[-1]), known, n=1)
-    if suggestion:
-        return f"unknown field; did you mean {suggestion[0]!r}?"
-    return "unknown field" + ("; known fields here: " + ", ".join(known) if known else "")
-
-
-def _allowed(loc: tuple[Any, ...]) -> str:
-    _, info = _walk(loc)
-    if info is None:
-        return ""
-    lower = upper = ""
-    for meta in info.metadata:
-        if isinstance(meta, annotated_types.Ge):
-            lower = f"{meta.ge} <= value"
-        elif isinstance(meta, annotated_types.Gt):
-            lower = f"{meta.gt} < value"
-        elif isinstance(meta, annotated_types.Le):
-            upper = f"value <= {meta.le}"
-        elif isinstance(meta, annotated_types.Lt):
-            upper = f"value < {meta.lt}"
-    if lower and upper:
-        return lower + upper.removeprefix("value")
-    return lower or upper
