@@ -24,6 +24,7 @@ import can
 
 from appliance.config import load_config
 from appliance.config.models import CanEndpoint, CanInterface
+from appliance.timing import FixedRateTicker
 from benchmarks.stats import summarize
 from drivers.pc104 import protocol
 from drivers.pc104.client import Pc104Client
@@ -116,7 +117,19 @@ async def bench_loaded_bus() -> list[str]:
     await asyncio.sleep(1.0)  # settle: resync, rate windows
     monitor = client.monitors[STATUS_ID]
     accepted0, status_sent0, sent0 = monitor.counts.accepted, generator.status_sent, generator.sent
+    # A 50 Hz control loop in the same event loop as the client, as in the daemon.
+    ticker = FixedRateTicker(0.02)
+
+    async def control_loop() -> None:
+        while True:
+            await ticker.tick()
+
+    control = asyncio.create_task(control_loop())
     cpu_percent, wall_s = await asyncio.to_thread(_cpu_percent, LOAD_SECONDS)
+    control.cancel()
+    with contextlib.suppress(asyncio.CancelledError):
+        await control
+    loop_report = ticker.stats.report()
     health = client.health()
     offered_fps = (generator.sent - sent0) / wall_s
     generator.stop_event.set()
@@ -134,6 +147,9 @@ async def bench_loaded_bus() -> list[str]:
         f"loaded bus: status frames sent {status_sent}, accepted {accepted} in {wall_s:.1f} s "
         f"(counter skips {monitor.counts.skips}, lost {lost}, late {monitor.counts.late}, "
         f"stale now: {health.stale})",
+        f"loaded bus: 50 Hz control loop beside the client: {loop_report.cycles} cycles, "
+        f"{loop_report.overruns} missed, jitter p50 {loop_report.jitter_p50_ms:.2f} ms, "
+        f"p99 {loop_report.jitter_p99_ms:.2f} ms, max {loop_report.jitter_max_ms:.2f} ms",
         f"loaded bus: CPU {cpu_percent:.1f} % of one core for the whole process "
         f"(load generator alone: {generator_cpu:.1f} %; "
         f"client ≈ {cpu_percent - generator_cpu:.1f} %)",
