@@ -17,13 +17,14 @@ from collections.abc import Awaitable, Callable
 from dataclasses import dataclass, field
 
 from appliance.config import VehicleConfig
-from appliance.config.models import CanEndpoint
+from appliance.config.models import CanEndpoint, ColaDialect
 from appliance.sim.site import Pose2D
 from appliance.sim.site_file import load_site
 from appliance.sim.vehicle import VehicleParams, VehicleState
 from appliance.sim.world import SimWorld
 from appliance.supervisor import ServiceSpec, beating_service
 from drivers.actuators.twin_set import ActuatorTwins
+from drivers.lms111 import Dialect
 from drivers.lms111.mounted import mount_pose
 from drivers.lms111.twin import Lms111Twin
 from drivers.pc104.link import bus_factory
@@ -44,6 +45,11 @@ class Simulator:
     def close(self) -> None:
         if self.board_twins is not None:
             self.board_twins.close()
+
+
+def lms111_dialect(dialect: ColaDialect) -> Dialect:
+    """The config's name for the encoding, as the LMS111 core spells it."""
+    return Dialect.COLA_B if dialect is ColaDialect.COLA_B else Dialect.COLA_A
 
 
 def twin_service(
@@ -107,6 +113,7 @@ def build_simulator(
             port=endpoint.port,
             scan_frequency_hz=endpoint.scan_frequency_hz,
             angular_resolution_deg=endpoint.angular_resolution_deg,
+            dialect=lms111_dialect(endpoint.cola_dialect),
         )
         simulator.scanner_twins[side] = twin
         simulator.services.append(twin_service(f"sim.lms111_{side}", twin.run, policy))

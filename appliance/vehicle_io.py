@@ -25,7 +25,7 @@ from appliance.config.models import CanInterface
 from appliance.logs import get_logger
 from appliance.sim.vehicle import MotionPattern
 from appliance.sim.world import SimWorld
-from appliance.simulator import Simulator, build_simulator
+from appliance.simulator import Simulator, build_simulator, lms111_dialect
 from appliance.supervisor import PermanentServiceError, ServiceSpec, beating_service
 from appliance.topics import Topic, TopicRegistry
 from drivers.actuators.boards import BoardClients, make_board_clients
@@ -177,6 +177,7 @@ def _build_scanners(config: VehicleConfig, io: VehicleIO, policy: RestartPolicy)
             endpoint,
             mount,
             topic,
+            dialect=lms111_dialect(endpoint.cola_dialect),
             read_deadline_periods=5,
             beat_while_waiting=True,
         )

@@ -32,6 +32,7 @@ from appliance.config.models import Lms111Endpoint, SensorMount
 from appliance.logs import configure_logging
 from appliance.topics import Topic
 from benchmarks.stats import summarize
+from drivers.lms111 import Dialect
 from drivers.lms111.client import Lms111Client, Lms111Health
 from drivers.lms111.mounted import MountedScan, mount_pose
 
@@ -44,11 +45,11 @@ MOUNTS = {
 # ---- the child: two twins, controlled through a pipe --------------------------------------
 
 
-def _twin_process(pipe: Connection) -> None:
-    asyncio.run(_serve_twins(pipe))
+def _twin_process(pipe: Connection, dialect: Dialect) -> None:
+    asyncio.run(_serve_twins(pipe, dialect))
 
 
-async def _serve_twins(pipe: Connection) -> None:
+async def _serve_twins(pipe: Connection, dialect: Dialect) -> None:
     from appliance.sim import Pose2D, load_site
     from drivers.lms111.twin import Lms111Twin
 
@@ -67,6 +68,7 @@ async def _serve_twins(pipe: Connection) -> None:
             serial_number=0x01420001 + i,
             seed=i,
             range_bias_m=0.01 * (i + 1),
+            dialect=dialect,
         )
         for i, (name, mount) in enumerate(MOUNTS.items())
     }
@@ -164,10 +166,10 @@ async def _reconnect(
     print("  target: <= 2 s (backoff cap 1 s + log-in and configuration)")
 
 
-async def _run(seconds: float, trials: int) -> None:
+async def _run(seconds: float, trials: int, dialect: Dialect) -> None:
     context = multiprocessing.get_context("spawn")
     parent, child = context.Pipe()
-    process = context.Process(target=_twin_process, args=(child,), daemon=True)
+    process = context.Process(target=_twin_process, args=(child, dialect), daemon=True)
     process.start()
     try:
         ports: dict[str, int] = await asyncio.get_running_loop().run_in_executor(None, parent.recv)
@@ -178,6 +180,7 @@ async def _run(seconds: float, trials: int) -> None:
                 Lms111Endpoint(host="127.0.0.1", port=ports[name]),
                 MOUNTS[name],
                 topics[name],
+                dialect=dialect,
             )
             for name in MOUNTS
         }
@@ -201,9 +204,12 @@ def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0] if __doc__ else None)
     parser.add_argument("--seconds", type=float, default=60.0, help="streaming time (s)")
     parser.add_argument("--trials", type=int, default=10, help="reconnect trials")
+    parser.add_argument("--dialect", choices=["cola-a", "cola-b"], default="cola-a")
     args = parser.parse_args([] if argv is None else argv)
     configure_logging("error", json=False)  # the outages are on purpose: no warnings
-    asyncio.run(_run(args.seconds, args.trials))
+    dialect = Dialect.COLA_A if args.dialect == "cola-a" else Dialect.COLA_B
+    print(f"dialect: {dialect.value}")
+    asyncio.run(_run(args.seconds, args.trials, dialect))
 
 
 if __name__ == "__main__":

@@ -96,11 +96,23 @@ class Limits(_Model):
         return self
 
 
+class ColaDialect(StrEnum):
+    """The SOPAS encoding the scanner is set to (SOPAS ET, or `sWN EIHstCola`).
+
+    CoLa-B is binary with a checksum: about a third of CoLa-A's bytes and of its decode
+    time, and a corrupted telegram is detected rather than misread.
+    """
+
+    COLA_A = "cola-a"
+    COLA_B = "cola-b"
+
+
 class Lms111Endpoint(_Model):
-    """One SICK LMS111 on Ethernet (CoLa-A on 2111 or CoLa-B on 2112 by default)."""
+    """One SICK LMS111 on Ethernet."""
 
     host: str = Field("127.0.0.1", min_length=1)
     port: Port = 2111
+    cola_dialect: ColaDialect = ColaDialect.COLA_A
     scan_frequency_hz: Annotated[int, Field(ge=25, le=50)] = 50
     angular_resolution_deg: float = Field(0.5, ge=0.25, le=0.5)
 

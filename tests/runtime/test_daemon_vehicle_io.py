@@ -140,3 +140,23 @@ async def test_pc104_faults_are_reported_and_survived_by_the_daemon() -> None:
         daemon.request_stop("test over")
         result = await asyncio.wait_for(run, 3.0)
     assert result.exit_code == 0
+
+
+async def test_scanners_set_to_cola_b_stream_too() -> None:
+    config = load_config("sim")
+    devices = config.devices.model_copy(
+        update={
+            side: getattr(config.devices, side).model_copy(update={"cola_dialect": "cola-b"})
+            for side in ("lms111_left", "lms111_right")
+        }
+    )
+    daemon = Daemon(config.model_copy(update={"devices": devices}))
+    run = asyncio.ensure_future(daemon.run(handle_signals=False))
+    try:
+        for side in ("left", "right"):
+            first = await asyncio.wait_for(daemon.io.topics.get(f"scan.{side}").wait_next(), 10)
+            assert first.value.scan.ranges_m.size == 541
+            assert daemon.io.scanners[side].health.malformed_telegrams == 0
+    finally:
+        daemon.request_stop("test over")
+        await asyncio.wait_for(run, 3.0)
