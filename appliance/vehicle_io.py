@@ -24,7 +24,6 @@ from appliance.config import VehicleConfig
 from appliance.config.models import CanInterface
 from appliance.logs import get_logger
 from appliance.sim.vehicle import MotionPattern
-from appliance.sim.world import SimWorld
 from appliance.simulator import Simulator, build_simulator, lms111_dialect
 from appliance.supervisor import PermanentServiceError, ServiceSpec, beating_service
 from appliance.topics import Topic, TopicRegistry
@@ -56,7 +55,6 @@ class VehicleIO:
     topics: TopicRegistry = field(default_factory=TopicRegistry)
     services: list[ServiceSpec] = field(default_factory=list)
     safe_stop_targets: list[SafeStopTarget] = field(default_factory=list)
-    world: SimWorld | None = None
     simulator: Simulator | None = None
     boards: BoardClients | None = None
     pc104: Pc104Client | None = None
@@ -123,7 +121,6 @@ def build_vehicle_io(config: VehicleConfig, policy: RestartPolicy) -> VehicleIO:
             )
         simulator = build_simulator(config, policy, can=config.devices.can)
         io.simulator = simulator
-        io.world = simulator.world
         io.services.extend(simulator.services)
         io._closers.append(simulator.close)
     _build_pc104(config, io, policy)
