@@ -9,6 +9,7 @@ recovered from without a restart.
 
 from __future__ import annotations
 
+import itertools
 import json
 import re
 import shutil
@@ -179,12 +180,20 @@ def test_daemon_and_simulated_vehicle_over_vcan(vcan_channel: str, tmp_path: Pat
     # The recorded bus, checked independently of the daemon's code.
     commands = db.get_message_by_name("HL_MotionCommand")
     by_id: dict[int, list[bytes]] = {}
+    command_times_s: list[float] = []
     for line in dump_path.read_text().splitlines():
         match = _LOG_LINE.match(line)
         assert match is not None, line
-        by_id.setdefault(int(match["id"], 16), []).append(bytes.fromhex(match["data"]))
+        frame_id = int(match["id"], 16)
+        by_id.setdefault(frame_id, []).append(bytes.fromhex(match["data"]))
+        if frame_id == commands.frame_id:
+            command_times_s.append(float(match["ts"]))
     sent = by_id.get(commands.frame_id, [])
-    assert len(sent) > 50, "the daemon commands the PC104 at its control rate"
+    assert len(sent) >= 20, "the daemon commands the PC104"
+    # At its control rate (50 Hz): the median gap, which the down/up outage cannot move.
+    gaps_s = sorted(b - a for a, b in itertools.pairwise(command_times_s) if b > a)
+    median_gap_s = gaps_s[len(gaps_s) // 2]
+    assert 0.8 * 0.02 <= median_gap_s <= 2.5 * 0.02, median_gap_s
     patterns = set()
     steps_ok = 0
     previous = None
@@ -202,4 +211,4 @@ def test_daemon_and_simulated_vehicle_over_vcan(vcan_channel: str, tmp_path: Pat
     assert patterns == {"STOP"}, patterns
     # Rolling counter steps by one, apart from frames lost while the interface was down.
     assert steps_ok >= 0.95 * (len(sent) - 1)
-    assert len(by_id.get(status.frame_id, [])) > 50, "the twin's status reached the bus"
+    assert len(by_id.get(status.frame_id, [])) >= 20, "the twin's status reached the bus"
