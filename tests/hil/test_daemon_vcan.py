@@ -166,7 +166,9 @@ def test_daemon_and_simulated_vehicle_over_vcan(vcan_channel: str, tmp_path: Pat
         assert daemon.poll() is None
 
         daemon.send_signal(signal.SIGTERM)
-        assert daemon.wait(timeout=10) == 0
+        code = daemon.wait(timeout=10)
+        tail = "\n".join(daemon_log.read_text().splitlines()[-15:])
+        assert code == 0, f"daemon exit status {code}; log tail:\n{tail}"
     finally:
         for proc in reversed(procs):
             if proc.poll() is None:
