@@ -185,14 +185,71 @@ class Staleness(_Model):
 
 
 class SafetyTimeouts(_Model):
-    """How the vehicle is brought to rest and how long each step may take."""
+    """How the vehicle is brought to rest, how long each step may take, and the thresholds
+    of the safety rules (override detection, steering consistency, link error budget)."""
 
     safe_stop_decel_mps2: float = Field(1.5, gt=0.0, le=8.0)
     estop_decel_mps2: float = Field(4.0, gt=0.0, le=10.0)
+    # Deceleration the vehicle reaches at 100 % brake: maps a deceleration to a brake level.
+    full_brake_decel_mps2: float = Field(5.0, gt=0.0, le=12.0)
+    # How fast the safe-stop brake is applied (0 -> target), so a fault at speed does not
+    # lock the wheels of a loaded vehicle; the e-stop applies full brake at once.
+    safe_stop_brake_ramp_pct_per_s: float = Field(200.0, gt=0.0, le=10_000.0)
+    # Steering override: |measured - commanded| tyre angle above the threshold for the
+    # dwell time while the servo pushes at least min torque means hands on the wheel;
+    # it ends below the release threshold (hysteresis).
+    steer_override_threshold_deg: float = Field(4.0, gt=0.0, le=30.0)
+    steer_override_release_deg: float = Field(2.0, gt=0.0, le=30.0)
+    steer_override_dwell_s: float = Field(0.1, ge=0.0, le=2.0)
+    steer_override_min_torque_nm: float = Field(8.0, ge=0.0, le=30.0)
+    # Near the steering stops a deviation towards the stop is the stop, not the operator.
+    steer_stop_margin_deg: float = Field(1.5, ge=0.0, le=10.0)
+    # Steering consistency: beyond the tolerance for this long without an override means
+    # the servo is not steering (torque loss, slip): a steering fault.
+    steer_tracking_tolerance_deg: float = Field(3.0, gt=0.0, le=30.0)
+    steer_tracking_fault_after_s: float = Field(0.5, gt=0.0, le=5.0)
+    # A pedal more than this above what our actuator pulls is the operator's foot.
+    pedal_override_margin_pct: float = Field(8.0, gt=0.0, le=50.0)
+    # PC104 link: every CRC/counter/length error adds one, every good status frame takes
+    # one away (panda); at the limit the link is a fault.
+    pc104_error_budget_limit: Annotated[int, Field(ge=1, le=1000)] = 10
     # The PC104 and the boards stop on their own when commands stop for this long.
     lower_layer_command_timeout_s: float = Field(0.1, gt=0.0, le=1.0)
     # Shutdown must finish within 1 s in total; this is the budget for services to unwind.
     shutdown_grace_s: float = Field(0.6, gt=0.0, le=0.9)
+
+    @model_validator(mode="after")
+    def _thresholds_are_ordered(self) -> Self:
+        if self.steer_override_release_deg >= self.steer_override_threshold_deg:
+            raise ValueError(
+                "steer_override_release_deg must be below steer_override_threshold_deg "
+                f"(got {self.steer_override_release_deg} >= {self.steer_override_threshold_deg})"
+            )
+        if self.safe_stop_decel_mps2 > self.full_brake_decel_mps2:
+            raise ValueError(
+                "safe_stop_decel_mps2 must not exceed full_brake_decel_mps2 "
+                f"(got {self.safe_stop_decel_mps2} > {self.full_brake_decel_mps2})"
+            )
+        return self
+
+
+class Engagement(_Model):
+    """How the operator engages automatic control (Stanley et al., Fig. 4)."""
+
+    # Each + or - press while speed hold is on changes the set speed by this much.
+    speed_step_mps: float = Field(0.25, gt=0.0, le=2.0)
+    # The set speed never exceeds this (and never limits.max_speed_mps).
+    max_set_speed_mps: float = Field(3.0, gt=0.0, le=20.0)
+    # How fast the speed set-point sent to the PC104 may rise (falling is not limited).
+    max_accel_mps2: float = Field(0.5, gt=0.0, le=5.0)
+    # Kinouchi et al.'s guidance mode: the vehicle moves only while the operator holds
+    # the engage button; on release it stops within hold_to_move_stop_distance_m.
+    hold_to_move: bool = False
+    hold_to_move_stop_distance_m: float = Field(1.0, gt=0.0, le=20.0)
+    # SELF_CHECK waits this long for every critical input before it fails.
+    self_check_timeout_s: float = Field(10.0, gt=0.0, le=120.0)
+    # The autopilot's steering/speed source until guidance provides one: by name.
+    autopilot_source: str = Field("hold_straight", min_length=1)
 
 
 class Supervision(_Model):
@@ -220,6 +277,9 @@ class Supervision(_Model):
 class Paths(_Model):
     state_dir: str = Field("var/dbw", min_length=1)
     calibration_file: str = Field("var/dbw/calibration.toml", min_length=1)
+    # The bench/status socket (`dbw status`, `dbw engage`, ...). Owned by the service
+    # user, mode 0660: whoever can move the vehicle needs the socket's permissions.
+    control_socket: str = Field("var/dbw/control.sock", min_length=1)
 
 
 class Simulation(_Model):
@@ -249,6 +309,7 @@ class VehicleConfig(_Model):
     rates: Rates = Rates()
     staleness: Staleness = Staleness()
     safety: SafetyTimeouts = SafetyTimeouts()
+    engagement: Engagement = Engagement()
     supervision: Supervision = Supervision()
     paths: Paths = Paths()
     simulation: Simulation = Simulation(enabled=False)
@@ -269,6 +330,11 @@ class VehicleConfig(_Model):
                         "but simulation.enabled is false: set the real serial device "
                         "(e.g. /dev/ttyUSB0) or enable the simulation"
                     )
+        if self.engagement.max_set_speed_mps > self.limits.max_speed_mps:
+            raise ValueError(
+                "engagement.max_set_speed_mps must not exceed limits.max_speed_mps "
+                f"(got {self.engagement.max_set_speed_mps} > {self.limits.max_speed_mps})"
+            )
         control_period_s = 1.0 / self.rates.control_hz
         if self.supervision.control_heartbeat_deadline_s < 2 * control_period_s:
             raise ValueError(
