@@ -74,6 +74,16 @@ class ManualOverridePressed:
 
 
 @dataclass(frozen=True)
+class SteeringOverridden:
+    """The operator took the wheel (detected by the override rule): everything goes back."""
+
+
+@dataclass(frozen=True)
+class ThrottlePedalPressed:
+    """The operator's foot on the throttle in speed hold: the throttle is theirs again."""
+
+
+@dataclass(frozen=True)
 class FaultRaised:
     reason: str
 
@@ -112,6 +122,8 @@ Event = (
     | SpeedMinusPressed
     | BrakeTap
     | ManualOverridePressed
+    | SteeringOverridden
+    | ThrottlePedalPressed
     | FaultRaised
     | FaultCleared
     | EStopPressed
@@ -392,6 +404,12 @@ def step(
         case BrakeTap() if mode is Mode.SPEED_HOLD:
             new, actions = _enter(state, Mode.ENGAGED, "speed hold cancelled by brake")
             return new, [HandBackThrottle(), *actions]
+        case ThrottlePedalPressed() if mode is Mode.SPEED_HOLD:
+            new, actions = _enter(state, Mode.ENGAGED, "speed hold cancelled by throttle pedal")
+            return new, [HandBackThrottle(), *actions]
+        case SteeringOverridden() if mode in AUTOMATIC_MODES:
+            new, actions = _enter(state, Mode.READY, "operator took the wheel")
+            return new, [*_hand_back(), *actions]
         case ManualOverridePressed() if mode in AUTOMATIC_MODES:
             new, actions = _enter(state, Mode.READY, "manual override")
             return new, [*_hand_back(), *actions]

@@ -42,6 +42,8 @@ from appliance.modes import (
     SetSpeed,
     SpeedMinusPressed,
     SpeedPlusPressed,
+    SteeringOverridden,
+    ThrottlePedalPressed,
     lamps,
     motion_permitted,
     refusal_reasons,
@@ -94,20 +96,22 @@ EVENTS: dict[str, Event] = {
     "reset": EStopReset(),
     "hold": HoldToMovePressed(),
     "release": HoldToMoveReleased(),
+    "wheel": SteeringOverridden(),
+    "gas": ThrottlePedalPressed(),
 }
 
 # fmt: off
 # columns: boot_done check_ok check_fail engage plus minus brake override fault cleared
-#          estop reset hold release (the order of EVENTS)
+#          estop reset hold release wheel gas (the order of EVENTS)
 TABLE: dict[str, tuple[Mode, ...]] = {
-    "boot":          (SC, B,  B,  B,  B,  B,  B,  B,  ER, B,  ES, B,  B,  B),
-    "self_check":    (SC, R,  ER, SC, SC, SC, SC, SC, ER, SC, ES, SC, SC, SC),
-    "ready":         (R,  R,  R,  EN, R,  R,  R,  R,  ER, R,  ES, R,  R,  R),
-    "engaged":       (EN, EN, EN, EN, SH, SH, EN, R,  ER, EN, ES, EN, EN, EN),
-    "speed_hold":    (SH, SH, SH, SH, SH, SH, EN, R,  ER, SH, ES, SH, SH, SH),
-    "error_latched": (ER, ER, ER, ER, ER, ER, ER, ER, ER, ER, ES, ER, ER, ER),
-    "error_cleared": (ER, ER, ER, ER, ER, ER, ER, R,  ER, ER, ES, ER, ER, ER),
-    "estop":         (ES, ES, ES, ES, ES, ES, ES, ES, ES, ES, ES, R,  ES, ES),
+    "boot":          (SC, B,  B,  B,  B,  B,  B,  B,  ER, B,  ES, B,  B,  B,  B,  B),
+    "self_check":    (SC, R,  ER, SC, SC, SC, SC, SC, ER, SC, ES, SC, SC, SC, SC, SC),
+    "ready":         (R,  R,  R,  EN, R,  R,  R,  R,  ER, R,  ES, R,  R,  R,  R,  R),
+    "engaged":       (EN, EN, EN, EN, SH, SH, EN, R,  ER, EN, ES, EN, EN, EN, R,  EN),
+    "speed_hold":    (SH, SH, SH, SH, SH, SH, EN, R,  ER, SH, ES, SH, SH, SH, R,  EN),
+    "error_latched": (ER, ER, ER, ER, ER, ER, ER, ER, ER, ER, ES, ER, ER, ER, ER, ER),
+    "error_cleared": (ER, ER, ER, ER, ER, ER, ER, R,  ER, ER, ES, ER, ER, ER, ER, ER),
+    "estop":         (ES, ES, ES, ES, ES, ES, ES, ES, ES, ES, ES, R,  ES, ES, ES, ES),
 }
 # fmt: on
 
@@ -263,6 +267,8 @@ events: st.SearchStrategy[Event] = st.one_of(
             EStopReset(),
             HoldToMovePressed(),
             HoldToMoveReleased(),
+            SteeringOverridden(),
+            ThrottlePedalPressed(),
         ]
     ),
     st.builds(SelfCheckFailed, st.lists(reasons, max_size=2).map(tuple)),
@@ -340,7 +346,7 @@ class ModeMachine(RuleBasedStateMachine):
             assert refusal_reasons(before, conditions) == ()
             self.needs_explicit_engage = False
         elif entered is EN:
-            assert before.mode is SH and isinstance(event, BrakeTap)
+            assert before.mode is SH and isinstance(event, BrakeTap | ThrottlePedalPressed)
         if entered is SH:
             assert before.mode is EN
             assert isinstance(event, SpeedPlusPressed | SpeedMinusPressed)
