@@ -1,7 +1,7 @@
 """Arbitration: operator > safety > autopilot, and only allow-listed set-points pass.
 
 The operator always wins: when a pedal or the steering wheel is overridden, automatic
-control lets go within the same cycle. Then safety: when control is revoked (a fault, a
+control of that channel (speed or steering) lets go within the same cycle. Then safety: when control is revoked (a fault, a
 stale critical input) the safe command goes out. Only then the autopilot, and even then
 only what the operator engaged: steering when steering is engaged, throttle and brake
 when speed is engaged. Everything else is left at its released value (allow-list).
@@ -55,21 +55,24 @@ def arbitrate(
     *,
     safe_brake_pct: float = 100.0,
 ) -> ActuatorCommand | None:
-    """Decide what may be sent this cycle.
+    """Decide what may be sent this cycle, channel by channel.
 
-    An operator override releases everything, brake included: braking against an
-    operator who is steering or accelerating out of trouble would take control from
-    them. A missing autopilot command releases too; whether that is a fault is the
-    staleness rule's decision, not arbitration's.
+    Steering and speed are arbitrated separately: a foot on the brake in speed hold takes
+    the speed channel back at once while steering stays automatic (the cruise-control
+    behaviour of Stanley et al.), and hands on the wheel take steering back. When control
+    is revoked, an operator override of any kind releases everything, brake included:
+    braking against an operator who is steering or accelerating out of trouble would take
+    control from them. A missing autopilot command releases too; whether that is a fault
+    is the staleness rule's decision, not arbitration's.
     """
-    if operator.overriding:
-        return RELEASED
     if safety_revoked:
-        return safe_command(safe_brake_pct)
+        return RELEASED if operator.overriding else safe_command(safe_brake_pct)
     if autopilot is None:
         return RELEASED
+    steering_ours = engaged_steering and not operator.steering_override
+    speed_ours = engaged_speed and not (operator.brake_pedal or operator.throttle_pedal)
     return ActuatorCommand(
-        steer_angle_rad=autopilot.steer_angle_rad if engaged_steering else None,
-        throttle_pct=autopilot.throttle_pct if engaged_speed else 0.0,
-        brake_pct=autopilot.brake_pct if engaged_speed else 0.0,
+        steer_angle_rad=autopilot.steer_angle_rad if steering_ours else None,
+        throttle_pct=autopilot.throttle_pct if speed_ours else 0.0,
+        brake_pct=autopilot.brake_pct if speed_ours else 0.0,
     )

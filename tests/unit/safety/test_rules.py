@@ -196,13 +196,15 @@ class TestArbitration:
         self, operator: OperatorInput, revoked: bool, speed: bool, steering: bool
     ) -> None:
         out = arbitrate(operator, revoked, AUTOPILOT, steering, speed)
-        if operator.overriding:
+        if revoked and operator.overriding:
             expected = RELEASED
         elif revoked:
             expected = safe_command()
         else:
+            steer_ours = steering and not operator.steering_override
+            speed_ours = speed and not (operator.brake_pedal or operator.throttle_pedal)
             expected = ActuatorCommand(
-                0.2 if steering else None, 15.0 if speed else 0.0, 5.0 if speed else 0.0
+                0.2 if steer_ours else None, 15.0 if speed_ours else 0.0, 5.0 if speed_ours else 0.0
             )
         assert out == expected
 
@@ -323,9 +325,13 @@ class TestPropertiesOverAllRules:
     ) -> None:
         out = arbitrate(operator, revoked, autopilot, steering, speed)
         assert out is not None
-        if operator.overriding:
-            assert out == RELEASED  # no autopilot actuation at all
-        elif revoked or autopilot is None:
+        if operator.steering_override:
+            assert out.steer_angle_rad is None  # the wheel is the operator's
+        if operator.brake_pedal or operator.throttle_pedal:
+            assert out.throttle_pct == 0.0  # the pedals are the operator's
+        if revoked and operator.overriding:
+            assert out == RELEASED  # operator > safety: no actuation against them at all
+        if revoked or autopilot is None:
             assert out.steer_angle_rad is None
             assert out.throttle_pct == 0.0
         if not steering:
@@ -349,6 +355,7 @@ class TestPropertiesOverAllRules:
         out, _ = CommandLimiter(p).update(chosen, 0.0, 0.0, 0.0)
         if out != p.safe_command():
             assert_within_limits(out, p)
-        if operator.overriding or revoked:
+        if operator.steering_override or revoked:
             assert out.steer_angle_rad is None
+        if operator.brake_pedal or operator.throttle_pedal or revoked:
             assert out.throttle_pct == 0.0
