@@ -12,6 +12,7 @@ import sys
 import click
 
 from appliance import __version__
+from appliance.cli_calibration import calibration
 from appliance.cli_lms111 import lms111
 from appliance.cli_sim import sim
 from appliance.config import BUILTIN_PROFILES, ConfigError, VehicleConfig, load_config
@@ -100,6 +101,7 @@ def config_show(file: str | None, as_json: bool) -> None:
 
 cli.add_command(lms111)
 cli.add_command(sim)
+cli.add_command(calibration)
 
 
 def main() -> None:

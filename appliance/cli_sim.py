@@ -21,6 +21,8 @@ from appliance.config.models import CanEndpoint, CanInterface
 from appliance.logs import get_logger
 from appliance.simulator import Simulator, build_simulator
 from appliance.supervisor import Supervisor
+from calibration.calfile import write_calibration
+from calibration.simulated import simulated_calibration
 from safety.watchdog import RestartPolicy
 
 log = get_logger("sim")
@@ -28,11 +30,18 @@ log = get_logger("sim")
 BOARDS = ("steering", "throttle", "brake", "panel")
 
 
-def daemon_config(config: VehicleConfig, simulator: Simulator, can: CanEndpoint | None) -> str:
+def daemon_config(
+    config: VehicleConfig,
+    simulator: Simulator,
+    can: CanEndpoint | None,
+    calibration_file: Path | None = None,
+) -> str:
     """A vehicle file for `dbw run` that reaches this simulator's endpoints."""
     data = config.model_dump(mode="json")
     data["name"] = f"{config.name}-via-dbw-sim"
     data["simulation"]["enabled"] = False
+    if calibration_file is not None:
+        data["paths"]["calibration_file"] = str(calibration_file)
     assert simulator.board_twins is not None
     for board in BOARDS:
         path = simulator.board_twins.port_path(f"sim://{board}")
@@ -80,7 +89,15 @@ async def run_simulator(
         for name, where in endpoints.items():
             click.echo(f"{name:>16}: {where}")
         if write_config is not None:
-            text = daemon_config(config, simulator, can)
+            # The simulated vehicle's calibration beside the vehicle file: the daemon in
+            # the other process has simulation disabled, so it cannot use the built-in one.
+            calibration_file = write_config.with_name(write_config.stem + ".calibration.toml")
+            await asyncio.to_thread(
+                write_calibration,
+                calibration_file,
+                simulated_calibration(f"{config.name}-via-dbw-sim"),
+            )
+            text = daemon_config(config, simulator, can, calibration_file.resolve())
             await asyncio.to_thread(write_config.write_text, text, encoding="utf-8")
             click.echo(f"{'daemon config':>16}: {write_config}  (dbw run --config {write_config})")
         sys.stdout.flush()

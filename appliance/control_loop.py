@@ -1,48 +1,97 @@
-"""The control loop service: a fixed-rate, heart-beating shell around a pure control core.
+"""The control loop service: a fixed-rate, heart-beating shell around the pure control core.
 
-Each cycle the loop asks the core for commands at an explicit time and hands them to the
-command sinks. Until the mode machine exists the only core is :class:`HoldSafeCore`,
-which holds every actuator in the safe state: nothing can be engaged yet, so the only
-honest output is "throttle 0, brake on, steering released". The loop's heartbeat is what
-lets the daemon pet systemd's watchdog.
+Each cycle takes the latest value of every input topic with its age, calls
+``ControlCore.step(inputs, now_s)``, and hands the result to the command sinks (the
+actuator boards and the PC104). The loop's heartbeat is what lets the daemon pet
+systemd's watchdog, so a loop that hangs gets the process restarted; a loop that crashes
+is restarted by the supervisor with a *new* core state (BOOT): nothing re-engages by
+itself. Commands to the boards are leased for a few cycles, so a hung loop cannot keep
+the vehicle steering on its last set-point (the PC104 client applies the same rule with
+its command timeout).
+
+Cycle timing (wake-up jitter, missed cycles) and the core's own step time are measured
+and reported in the ``heartbeats`` log and in ``dbw status``.
 """
 
 from __future__ import annotations
 
+import time
+from collections import deque
 from collections.abc import Callable
-from dataclasses import dataclass
-from typing import Protocol
+from typing import Any, Protocol
 
+import numpy as np
+
+from appliance.core.core import ControlCore, CoreOutput
+from appliance.core.inputs import ControlInputs, LinkCounts
 from appliance.logs import get_logger
 from appliance.supervisor import ServiceContext
 from appliance.timing import FixedRateTicker
-from safety.safe_stop import SafeCommand
+from appliance.topics import TopicRegistry
 
 log = get_logger("control")
 
-
-@dataclass(frozen=True)
-class CycleOutput:
-    now_s: float
-    command: SafeCommand
-    engaged: bool
+# A command outlives its cycle by this many periods, then the boards stop hearing it.
+LEASE_PERIODS = 3
 
 
-class ControlCore(Protocol):
-    def step(self, now_s: float) -> CycleOutput: ...
+class CommandSink(Protocol):
+    def send(self, output: CoreOutput) -> None: ...
 
 
-class HoldSafeCore:
-    """The core before any engagement is possible: always the safe command."""
-
-    def __init__(self, safe_command: SafeCommand) -> None:
-        self._safe_command = safe_command
-
-    def step(self, now_s: float) -> CycleOutput:
-        return CycleOutput(now_s=now_s, command=self._safe_command, engaged=False)
+class InputSource(Protocol):
+    def read(self, now_s: float) -> ControlInputs: ...
 
 
-CommandSink = Callable[[CycleOutput], None]
+class TopicInputs:
+    """Builds the core's inputs from the daemon's topics (and the PC104 link's counters)."""
+
+    def __init__(
+        self,
+        topics: TopicRegistry,
+        link_counts: Callable[[], LinkCounts] | None = None,
+        service_faults: Callable[[], dict[str, str]] | None = None,
+    ) -> None:
+        self.topics = topics
+        self.link_counts = link_counts
+        self.service_faults = service_faults
+
+    def _latest(self, name: str) -> Any:
+        sample = self.topics.get(name).latest()
+        return None if sample is None else sample.value
+
+    def read(self, now_s: float) -> ControlInputs:
+        ages = self.topics.ages_s(now_s)
+        # The steering pot travels in the steering board's telemetry; it has its own limit.
+        ages["steering.pot"] = ages.get("board.steering", float("inf"))
+        panel = self.topics.get("board.panel").latest()
+        return ControlInputs(
+            ages_s=ages,
+            steering=self._latest("board.steering"),
+            throttle=self._latest("board.throttle"),
+            brake=self._latest("board.brake"),
+            panel=None if panel is None else panel.value,
+            panel_seq=None if panel is None else panel.seq,
+            pc104_status=self._latest("pc104.status"),
+            pc104_link=self.link_counts() if self.link_counts is not None else LinkCounts(),
+            scans={side: self._latest(f"scan.{side}") for side in ("left", "right")},
+            service_faults=self.service_faults() if self.service_faults is not None else {},
+        )
+
+
+class StepTimes:
+    """The core's compute time per cycle, over a bounded window."""
+
+    def __init__(self, window: int = 5000) -> None:
+        self._s: deque[float] = deque(maxlen=window)
+
+    def update(self, seconds: float) -> None:
+        self._s.append(seconds)
+
+    def p99_ms(self) -> float:
+        if not self._s:
+            return float("nan")
+        return float(np.percentile(np.asarray(self._s), 99) * 1e3)
 
 
 class ControlLoop:
@@ -51,21 +100,65 @@ class ControlLoop:
     def __init__(
         self,
         core: ControlCore,
+        inputs: InputSource,
         rate_hz: float,
         sinks: list[CommandSink] | None = None,
+        clock: Callable[[], float] = time.monotonic,
     ) -> None:
         self.core = core
-        self.ticker = FixedRateTicker(1.0 / rate_hz)
+        self.inputs = inputs
+        self.rate_hz = rate_hz
+        self.ticker = FixedRateTicker(1.0 / rate_hz, clock=clock)
         self.sinks = list(sinks or [])
-        self.last_output: CycleOutput | None = None
+        self.last_output: CoreOutput | None = None
+        self.step_times = StepTimes()
+        self._clock = clock
+        self.on_output: list[Callable[[CoreOutput], None]] = []
+        self.halted = False
+
+    @property
+    def lease_s(self) -> float:
+        return LEASE_PERIODS * self.ticker.period_s
+
+    def halt(self) -> None:
+        """Stop sending: the daemon is shutting down and has commanded the safe state
+        itself; a cycle after that must not overwrite it."""
+        self.halted = True
+
+    def cycle(self, now_s: float) -> CoreOutput:
+        """One cycle; public so tests and benchmarks can drive the loop with a fake clock."""
+        started = self._clock()
+        output = self.core.step(self.inputs.read(now_s), now_s)
+        self.step_times.update(self._clock() - started)
+        if not self.halted:
+            for sink in self.sinks:
+                sink.send(output)
+        for note in output.notes:
+            level = log.error if note.event == "fault_raised" else log.info
+            level(note.event, mode=str(output.mode), **note.fields)
+        for hook in self.on_output:
+            hook(output)
+        self.last_output = output
+        return output
 
     async def run(self, ctx: ServiceContext) -> None:
+        # Every (re)start begins in BOOT: a restarted loop never resumes an engagement.
+        self.core.reset()
         self.ticker.reset()
-        log.info("control_loop_started", rate_hz=round(1.0 / self.ticker.period_s, 3))
+        log.info("control_loop_started", rate_hz=round(self.rate_hz, 3))
         while True:
             now_s = await self.ticker.tick()
-            output = self.core.step(now_s)
-            for sink in self.sinks:
-                sink(output)
-            self.last_output = output
+            self.cycle(now_s)
             ctx.beat()
+
+    def loop_figures(self) -> dict[str, float | int]:
+        report = self.ticker.stats.report()
+        return {
+            "rate_hz": self.rate_hz,
+            "cycles": report.cycles,
+            "overruns": report.overruns,
+            "jitter_p50_ms": round(report.jitter_p50_ms, 3),
+            "jitter_p99_ms": round(report.jitter_p99_ms, 3),
+            "jitter_max_ms": round(report.jitter_max_ms, 3),
+            "step_p99_ms": round(self.step_times.p99_ms(), 3),
+        }

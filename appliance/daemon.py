@@ -19,13 +19,26 @@ import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 from appliance.config import VehicleConfig
-from appliance.control_loop import ControlLoop, HoldSafeCore
+from appliance.control_loop import ControlLoop, TopicInputs
+from appliance.control_socket import ControlServer
+from appliance.core.autopilot import AutopilotSource
+from appliance.core.core import ControlCore
 from appliance.logs import get_logger
+from appliance.modes import Mode
 from appliance.supervisor import ServiceContext, ServiceSpec, ServiceState, Supervisor
 from appliance.systemd_notify import SystemdNotifier
-from appliance.vehicle_io import VehicleIO, build_vehicle_io, input_ages_s, link_summary
+from appliance.vehicle_io import (
+    VehicleCommandSink,
+    VehicleIO,
+    build_vehicle_io,
+    input_ages_s,
+    link_summary,
+    pc104_link_counts,
+)
+from calibration.calfile import Calibration, CalibrationError, load_calibration
 from safety.safe_stop import SafeCommand, SafeStop
 from safety.watchdog import RestartPolicy
 
@@ -74,16 +87,33 @@ class Daemon:
         notifier: SystemdNotifier | None = None,
         vehicle_io: VehicleIO | None = None,
         clock: Callable[[], float] = time.monotonic,
+        autopilot: AutopilotSource | None = None,
+        control_socket: str | None = None,
     ) -> None:
         self.config = config
         self.clock = clock
+        self.started_s = clock()
         self.safe_stop = safe_stop if safe_stop is not None else SafeStop(safe_command(config))
         self.notifier = notifier if notifier is not None else SystemdNotifier()
-        self.control = ControlLoop(HoldSafeCore(self.safe_stop.command), config.rates.control_hz)
         policy = restart_policy(config)
         self.io = vehicle_io if vehicle_io is not None else build_vehicle_io(config, policy)
         for target in self.io.safe_stop_targets:
             self.safe_stop.add_target(target)
+        calibration, problem = load_vehicle_calibration(config)
+        self.core = ControlCore(config, calibration, problem, autopilot=autopilot)
+        self.control = ControlLoop(
+            self.core,
+            TopicInputs(
+                self.io.topics, lambda: pc104_link_counts(self.io), self._critical_service_faults
+            ),
+            config.rates.control_hz,
+            clock=clock,
+        )
+        self.control.sinks.append(VehicleCommandSink(self.io, self.control.lease_s))
+        self.control_server = ControlServer(
+            control_socket if control_socket is not None else config.paths.control_socket,
+            DaemonControlApi(self),
+        )
         specs = [
             ServiceSpec(
                 name="control",
@@ -94,6 +124,13 @@ class Daemon:
             ),
             *self.io.services,
             *(extra_services or []),
+            ServiceSpec(
+                name="control_socket",
+                run=self.control_server.run,
+                critical=False,
+                restart=policy,
+                heartbeat_deadline_s=2.0,
+            ),
             ServiceSpec(
                 name="status",
                 run=self._status_service,
@@ -176,7 +213,9 @@ class Daemon:
         self.notifier.status(f"stopping: {result.reason}")
         log.info("daemon_stopping", reason=result.reason)
         # Command the safe state while the links to the actuators are still up; the
-        # lower layers' own command timeouts take over once the drivers are gone.
+        # lower layers' own command timeouts take over once the drivers are gone. The
+        # control loop stops sending first, so no later cycle overwrites it.
+        self.control.halt()
         self.safe_stop.engage(f"shutdown: {result.reason}")
         # Periodic senders (the PC104 command) transmit the safe command on their next tick.
         await asyncio.sleep(2.0 / self.config.rates.pc104_command_hz)
@@ -216,10 +255,21 @@ class Daemon:
             self.request_stop(name)
             return
         log.critical("signal_received", signal=name, action="forced exit")
+        self.control.halt()
         self.safe_stop.engage(f"forced exit on second signal {name}")
         os._exit(128 + signum)
 
     # ---- supervision hooks -------------------------------------------------------
+    def _critical_service_faults(self) -> dict[str, str]:
+        """Critical services that are not running: a fault for the core (ERROR, held safe)."""
+        faults = {}
+        for status in self.supervisor.snapshot():
+            running = status.state is ServiceState.RUNNING
+            if status.critical and status.name != "control" and not running:
+                why = f": {status.last_error}" if status.last_error else ""
+                faults[status.name] = f"{status.state}{why}"
+        return faults
+
     def _on_service_failure(self, spec: ServiceSpec, reason: str) -> None:
         if spec.critical:
             self.safe_stop.engage(f"critical service {spec.name} failed: {reason}")
@@ -261,10 +311,13 @@ class Daemon:
                 jitter = self.control.ticker.stats.report()
                 log.info(
                     "heartbeats",
+                    mode=str(self.core.state.mode),
+                    faults=[f.reason for f in self.core.state.faults],
                     services=self._service_summary(),
                     control_cycles=jitter.cycles,
                     control_overruns=jitter.overruns,
                     control_jitter_p99_ms=round(jitter.jitter_p99_ms, 3),
+                    control_step_p99_ms=round(self.control.step_times.p99_ms(), 3),
                     input_ages_s=input_ages_s(self.io, now_s),
                     links=link_summary(self.io),
                     watchdog_pings=self.watchdog_pings,
@@ -295,11 +348,69 @@ class Daemon:
         states = self.supervisor.snapshot()
         unhealthy = [s.name for s in states if s.critical and s.state is not ServiceState.RUNNING]
         restarts = sum(s.restarts for s in states)
+        state = self.core.state
+        head = str(state.mode).upper()
+        if state.mode is Mode.SPEED_HOLD and state.set_speed_mps is not None:
+            head += f" {state.set_speed_mps:.2f} m/s"
+        if state.faults:
+            head += ": " + "; ".join(f.reason for f in state.faults[:3])
+        elif state.mode is Mode.READY and self.core.last_refusal:
+            head += " (last refusal: " + "; ".join(self.core.last_refusal[:2]) + ")"
         if unhealthy:
-            head = "DEGRADED: restarting " + ", ".join(unhealthy)
-        else:
-            head = "running, holding safe (no autopilot engaged)"
+            head = "DEGRADED: restarting " + ", ".join(unhealthy) + "; " + head
         return f"{head}; {len(states)} services, {restarts} restart(s)"
+
+    def status_document(self) -> dict[str, Any]:
+        """What `dbw status` shows: the core's view plus inputs, loop figures, services."""
+        now_s = self.clock()
+        doc: dict[str, Any] = {
+            "vehicle": self.config.name,
+            "uptime_s": round(now_s - self.started_s, 3),
+        }
+        doc.update(self.core.status(now_s))
+        ages = self.io.topics.ages_s(now_s)
+        ages["steering.pot"] = ages.get("board.steering", math.inf)
+        limits = self.core.staleness.age_limits_s
+        critical = set(self.core.staleness.critical)
+        doc["inputs"] = {
+            name: {
+                "age_s": round(age, 4) if math.isfinite(age) else None,
+                "limit_s": limits.get(name),
+                "stale": name in limits and not (math.isfinite(age) and age <= limits[name]),
+                "critical": name in critical,
+            }
+            for name, age in sorted(ages.items())
+        }
+        doc["loop"] = self.control.loop_figures()
+        doc["services"] = self._service_summary()
+        if self.core.calibration_problem:
+            doc["calibration"] = self.core.calibration_problem
+        return doc
+
+
+class DaemonControlApi:
+    """The control socket's view of the daemon (status, and bench requests to the core)."""
+
+    def __init__(self, daemon: Daemon) -> None:
+        self._daemon = daemon
+
+    def status(self) -> dict[str, Any]:
+        return self._daemon.status_document()
+
+    def request(self, name: str) -> tuple[bool, str]:
+        return self._daemon.core.request(name, self._daemon.clock())
+
+
+def load_vehicle_calibration(config: VehicleConfig) -> tuple[Calibration | None, str]:
+    """The calibration, or None and why: the daemon still runs, but will not leave SELF_CHECK."""
+    path = config.paths.calibration_file
+    try:
+        calibration = load_calibration(path, config.name, config.simulation.enabled)
+    except CalibrationError as exc:
+        log.error("calibration_invalid", path=path, problems=exc.render())
+        return None, f"calibration {path}: " + "; ".join(str(p) for p in exc.problems)
+    log.info("calibration_loaded", path=path, source=calibration.source)
+    return calibration, ""
 
 
 def run_daemon(config: VehicleConfig, duration_s: float | None = None) -> int:

@@ -22,6 +22,8 @@ from typing import Any
 
 from appliance.config import VehicleConfig
 from appliance.config.models import CanInterface
+from appliance.core.core import CoreOutput
+from appliance.core.inputs import LinkCounts
 from appliance.logs import get_logger
 from appliance.sim.vehicle import MotionPattern
 from appliance.simulator import Simulator, build_simulator, lms111_dialect
@@ -259,3 +261,50 @@ def input_ages_s(io: VehicleIO, now_s: float) -> dict[str, float]:
         name: (round(age, 3) if math.isfinite(age) else age)
         for name, age in io.topics.ages_s(now_s).items()
     }
+
+
+class VehicleCommandSink:
+    """Sends one cycle's commands to the boards (leased) and the PC104.
+
+    Every path is told, even if an earlier one raised; the first error is re-raised
+    afterwards so the control service fails (and the supervisor's safe stop runs) instead
+    of carrying on with one actuator path silently out of date.
+    """
+
+    def __init__(self, io: VehicleIO, lease_s: float) -> None:
+        self._io = io
+        self._lease_s = lease_s
+
+    def send(self, output: CoreOutput) -> None:
+        errors: list[Exception] = []
+        boards = self._io.boards
+        if boards is not None:
+            orders: list[tuple[ActuatorClient[Any], Any]] = [
+                (boards.steering, output.steering),
+                (boards.throttle, output.throttle),
+                (boards.brake, output.brake),
+                (boards.panel, output.panel),
+            ]
+            for client, command in orders:
+                try:
+                    client.set_command(command, lease_s=self._lease_s)
+                except Exception as exc:
+                    errors.append(exc)
+        pc104 = self._io.pc104
+        if pc104 is not None:
+            try:
+                pc104.send_command(output.pc104, output.now_s)
+                pc104.set_state(output.hl_state)
+            except Exception as exc:
+                errors.append(exc)
+        if errors:
+            raise errors[0]
+
+
+def pc104_link_counts(io: VehicleIO) -> LinkCounts:
+    """The PC104 link's error and frame totals, for the safety layer's error budget."""
+    if io.pc104 is None:
+        return LinkCounts()
+    h = io.pc104.health()
+    errors = h.crc_errors + h.counter_errors + h.malformed_frames
+    return LinkCounts(errors=errors, good=max(h.frames_received - errors, 0))

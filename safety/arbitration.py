@@ -1,10 +1,11 @@
 """Arbitration: operator > safety > autopilot, and only allow-listed set-points pass.
 
 The operator always wins: when a pedal or the steering wheel is overridden, automatic
-control of that channel (speed or steering) lets go within the same cycle. Then safety: when control is revoked (a fault, a
-stale critical input) the safe command goes out. Only then the autopilot, and even then
-only what the operator engaged: steering when steering is engaged, throttle and brake
-when speed is engaged. Everything else is left at its released value (allow-list).
+control of that channel (speed or steering) lets go within the same cycle. Then
+safety: when control is revoked (a fault, a stale critical input) the safe command goes
+out. Only then the autopilot, and even then only what the operator engaged: steering
+when steering is engaged, throttle and brake when speed is engaged. Everything else is
+left at its released value (allow-list).
 
 The function never returns None ("send nothing"), although the type allows it. Sending
 nothing relies on the lower layers' own command timeouts, which act later than this

@@ -121,6 +121,8 @@ class ActuatorClient(Generic[TelemetryT]):
         self._lost = asyncio.Event()
         self._lost_reason = ""
         self._command: Command | None = None
+        self._lease_until_s: float | None = None
+        self._lease_expired_logged = False
         self._connected_s = 0.0
         self._stale_reported = False
         self._window_start_s = clock()
@@ -142,11 +144,15 @@ class ActuatorClient(Generic[TelemetryT]):
     def command(self) -> Command | None:
         return self._command
 
-    def set_command(self, command: Command) -> None:
+    def set_command(self, command: Command, lease_s: float | None = None) -> None:
         """Make ``command`` the one re-sent every period; send it now if connected.
 
-        Raises ActuatorProtocolError for another board's command or an out-of-range value,
-        before anything is sent.
+        ``lease_s``: re-send it only this long unless it is set again. The control loop
+        leases every command for a few cycles, so a hung loop does not keep a board
+        steering on its last set-point: once the lease runs out nothing is sent and the
+        board's own timeout puts it in its safe default. No lease (the safe-stop hook)
+        re-sends until replaced. Raises ActuatorProtocolError for another board's command
+        or an out-of-range value, before anything is sent.
         """
         if not isinstance(command, self.command_type):
             raise ActuatorProtocolError(
@@ -154,6 +160,8 @@ class ActuatorClient(Generic[TelemetryT]):
             )
         encode_payload(command)  # range check up front, not at the next tick
         self._command = command
+        self._lease_until_s = None if lease_s is None else self._clock() + lease_s
+        self._lease_expired_logged = False
         self._send_current()
 
     def clear_command(self) -> None:
@@ -306,6 +314,11 @@ class ActuatorClient(Generic[TelemetryT]):
     def _send_current(self) -> None:
         command, fd = self._command, self._fd
         if command is None or fd is None or self._lost.is_set():
+            return
+        if self._lease_until_s is not None and self._clock() > self._lease_until_s:
+            if not self._lease_expired_logged:
+                self._lease_expired_logged = True
+                self._logger().error("command_lease_expired", command=type(command).__name__)
             return
         data = self.codec.encode(command)
         try:

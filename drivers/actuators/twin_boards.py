@@ -36,6 +36,7 @@ from drivers.actuators.steering_model import (
     ServoParams,
     ServoState,
     ServoTarget,
+    available_torque_nm,
     pot_counts,
     step_servo,
 )
@@ -74,10 +75,20 @@ class SteeringTwin(BoardTwin[SteeringCommand]):
         self.torque_scale = 1.0
         self._rng = random.Random(seed)
         self._position_error_s = 0.0
+        self._hands_wheel_rad: float | None = None  # the operator holding the wheel here
 
     @property
     def wheel_angle_rad(self) -> float:
         return self.servo.wheel_rad
+
+    def operator_hands(self, wheel_rad: float | None) -> None:
+        """The operator grips the steering wheel at ``wheel_rad`` (None: lets go).
+
+        A person is stronger than the servo: the wheel goes where they hold it, and a servo
+        in position mode stalls against them at its torque limit, which is what the host's
+        override rule sees (pot far from the command, servo torque high).
+        """
+        self._hands_wheel_rad = wheel_rad
 
     def inject_torque_loss(self, torque_scale: float = 0.0) -> None:
         """Supply sag or a failed motor: the servo gives only this fraction of its torque."""
@@ -102,6 +113,16 @@ class SteeringTwin(BoardTwin[SteeringCommand]):
     def _update(self, now_s: float, dt_s: float) -> None:
         target = self._target()
         self.servo = step_servo(self.servo, target, dt_s, self.params, self.torque_scale)
+        hands = self._hands_wheel_rad
+        if hands is not None:
+            half_play = self.params.backlash_rad / 2.0
+            motor = min(max(self.servo.motor_rad, hands - half_play), hands + half_play)
+            push = 0.0
+            error = target.motor_setpoint_rad - motor
+            if target.mode is SteeringMode.POSITION and abs(error) > self.params.deadband_rad:
+                push = available_torque_nm(error, self.params, self.torque_scale)
+                push = push if error > 0 else -push
+            self.servo = ServoState(motor_rad=motor, wheel_rad=hands, torque_nm=push)
         error = abs(target.motor_setpoint_rad - self.servo.motor_rad)
         if target.mode is SteeringMode.POSITION and error > POSITION_ERROR_RAD:
             self._position_error_s += dt_s
@@ -219,6 +240,10 @@ class ThrottleTwin(_PedalTwin):
     world_source = "throttle_board"
     world_field = "throttle_pct"
 
+    def operator_pedal(self, pct: float) -> None:
+        """The operator's foot on the throttle pedal (0: foot off)."""
+        self.operator_pedal_pct = _clip_pct(pct)
+
     def telemetry(self, status: BoardStatus, fault: FaultCode, echo: int) -> ThrottleTelemetry:
         actuator, pedal = self._pedal_fields()
         return ThrottleTelemetry(status, fault, echo, round(actuator, 2), round(pedal, 2))
@@ -247,6 +272,14 @@ class BrakeTwin(_PedalTwin):
 
     def safe_default_pct(self) -> float:
         return self.estop_brake_pct if self.estop_active else self.timeout_brake_pct
+
+    def operator_pedal(self, pct: float) -> None:
+        """The operator's foot rests on the brake pedal at ``pct`` until changed (0: off)."""
+        self._tap = None
+        self._tap_end_s = None
+        self.operator_pedal_pct = _clip_pct(pct)
+        if self.world is not None:
+            self.world.set_inputs("operator", brake_pct=self.operator_pedal_pct)
 
     def operator_brake_tap(self, pct: float, duration_s: float) -> None:
         """The operator presses the pedal to ``pct`` for ``duration_s`` from the next step."""

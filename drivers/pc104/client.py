@@ -137,6 +137,7 @@ class Pc104Client:
             status_age_s=status_monitor.age_s(now_s),
             frames_in_per_s=self._in_rate.rate_per_s,
             frames_out_per_s=self._out_rate.rate_per_s,
+            frames_received=self._received,
             crc_errors=self._errors[ErrorReason.CRC],
             malformed_frames=self._errors[ErrorReason.LENGTH] + self._errors[ErrorReason.RANGE],
             counter_errors=sum(m.counts.counter_errors for m in monitors),

@@ -68,6 +68,7 @@ class LinkHealth:
     status_age_s: float
     frames_in_per_s: float
     frames_out_per_s: float
+    frames_received: int  # every frame read off the bus, good or bad (a monotonic total)
     crc_errors: int
     malformed_frames: int  # wrong length or a value outside the DBC
     counter_errors: int  # stuck + skipped + jumped counters, all PC104 messages

@@ -8,6 +8,12 @@ from appliance.config import load_config
 from appliance.daemon import Daemon
 from appliance.supervisor import ServiceState
 from appliance.vehicle_io import link_summary
+from drivers.actuators.messages import (
+    BrakeCommand,
+    SteeringCommand,
+    SteeringMode,
+    ThrottleCommand,
+)
 
 
 async def wait_until(predicate: object, timeout_s: float = 5.0) -> None:
@@ -57,11 +63,13 @@ async def test_shutdown_commands_the_boards_safe() -> None:
     assert boards is not None
     result = await daemon.run(duration_s=1.0, handle_signals=False)
     assert result.exit_code == 0
-    # Nothing was engaged, so nothing was commanded before the shutdown; the safe-stop
+    # The control loop commanded every board (the panel its lamps), and the safe-stop
     # frames went out on the wire while the links were still up.
-    for client in (boards.throttle, boards.brake, boards.steering):
+    for client in (boards.throttle, boards.brake, boards.steering, boards.panel):
         assert client.health().commands_sent >= 1, client.board
-    assert boards.panel.health().commands_sent == 0
+    assert boards.brake.command == BrakeCommand(enable=True, position_pct=100.0)
+    assert boards.throttle.command == ThrottleCommand(enable=False)
+    assert boards.steering.command == SteeringCommand(SteeringMode.RELEASE)
 
 
 async def test_simulated_scanners_see_the_launcher_ahead() -> None:

@@ -1,0 +1,634 @@
+"""The local control socket: `dbw status` and the bench commands talk to the daemon here.
+
+A Unix stream socket owned by the service user, mode 0660: whoever may move the vehicle
+needs the socket's permissions, and there is no network listener at all. The protocol is
+newline-delimited JSON, one reply per request, many requests per connection::
+
+    {"op": "status"}                    -> {"ok": true, "status": {...}}
+    {"op": "command", "name": "engage"} -> {"ok": true, "accepted": false, "message": "..."}
+    anything wrong                      -> {"ok": false, "error": "what is wrong"}
+
+The server trusts nothing a client does: lines are bounded, a bad request gets an error
+reply and the connection stays usable, clients are few and may not idle, and a client
+that vanishes mid-request is simply forgotten. A connection that pressed ``hold`` and
+ends without ``release`` releases on its way out, so a killed `dbw hold` (or a dropped
+ssh session) cannot leave the hold-to-move button pressed.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import errno
+import json
+import math
+import os
+import socket
+import stat
+import struct
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Final, Protocol
+
+from appliance.logs import get_logger
+from appliance.supervisor import PermanentServiceError, ServiceContext
+
+log = get_logger("control_socket")
+
+COMMAND_NAMES: Final[tuple[str, ...]] = (
+    "engage",
+    "disengage",
+    "speed_plus",
+    "speed_minus",
+    "estop",
+    "estop_reset",
+    "hold",
+    "release",
+)
+OPS: Final[tuple[str, ...]] = ("status", "command")
+MAX_LINE_BYTES: Final = 8 * 1024
+MAX_REPLY_BYTES: Final = 1024 * 1024  # a status document with a long fault history
+MAX_PATH_BYTES: Final = 107  # sun_path is 108 bytes including the terminating NUL
+BEAT_PERIOD_S: Final = 0.1
+STALE_PROBE_TIMEOUT_S: Final = 0.5
+CLOSE_CLIENTS_TIMEOUT_S: Final = 0.3
+_PERMANENT_BIND_ERRNOS: Final = frozenset(
+    {errno.EACCES, errno.EPERM, errno.EROFS, errno.ENOTDIR, errno.ENAMETOOLONG}
+)
+
+
+class ControlApi(Protocol):
+    """What the daemon offers the control socket."""
+
+    def status(self) -> dict[str, Any]:
+        """A JSON-serialisable snapshot of the daemon's state."""
+        ...
+
+    def request(self, name: str) -> tuple[bool, str]:
+        """Ask for one of :data:`COMMAND_NAMES`; (accepted, message). Must not block."""
+        ...
+
+
+class ControlSocketError(Exception):
+    """The client cannot talk to the daemon; the message says why and what to do."""
+
+
+class RequestError(Exception):
+    """A request line that is not a valid request; the message becomes the error reply."""
+
+
+# ---------------------------------------------------------------- the protocol (no I/O)
+
+
+@dataclass(frozen=True)
+class StatusRequest:
+    pass
+
+
+@dataclass(frozen=True)
+class CommandRequest:
+    name: str
+
+
+Request = StatusRequest | CommandRequest
+
+_FIELDS: Final[dict[str, frozenset[str]]] = {
+    "status": frozenset({"op"}),
+    "command": frozenset({"op", "name"}),
+}
+
+
+def decode_request(line: bytes) -> Request:
+    """Parse one request line (with or without its newline); raise only RequestError."""
+    try:
+        text = line.decode("utf-8")
+    except UnicodeDecodeError:
+        raise RequestError("request is not UTF-8 text") from None
+    if not text.strip():
+        raise RequestError('empty request: send one JSON object per line, e.g. {"op": "status"}')
+    try:
+        message = json.loads(text)
+    except (ValueError, RecursionError) as exc:
+        raise RequestError(f"request is not valid JSON: {exc}") from None
+    if not isinstance(message, dict):
+        raise RequestError(
+            f'request must be a JSON object, got {type(message).__name__}: e.g. {{"op": "status"}}'
+        )
+    op = message.get("op")
+    if op not in OPS:
+        what = "missing 'op'" if "op" not in message else f"unknown op {_short(op)}"
+        raise RequestError(f"{what}: known ops are {', '.join(OPS)}")
+    assert isinstance(op, str)
+    unknown = sorted(set(message) - _FIELDS[op])
+    if unknown:
+        raise RequestError(
+            f"unknown field(s) for op {op!r}: {', '.join(_short(key) for key in unknown)} "
+            f"(known: {', '.join(sorted(_FIELDS[op]))})"
+        )
+    if op == "status":
+        return StatusRequest()
+    name = message.get("name")
+    if name not in COMMAND_NAMES:
+        what = (
+            "missing command 'name'" if "name" not in message else f"unknown command {_short(name)}"
+        )
+        raise RequestError(f"{what}: known commands are {', '.join(COMMAND_NAMES)}")
+    assert isinstance(name, str)
+    return CommandRequest(name)
+
+
+def encode_message(message: Mapping[str, Any]) -> bytes:
+    """One line of strict JSON: non-finite numbers become null, anything else odd a string."""
+    return json.dumps(_jsonable(message), allow_nan=False, separators=(",", ":")).encode() + b"\n"
+
+
+def decode_reply(line: bytes) -> dict[str, Any]:
+    """Parse one reply line; raise only ControlSocketError."""
+    try:
+        reply = json.loads(line.decode("utf-8"))
+    except (UnicodeDecodeError, ValueError, RecursionError):
+        raise ControlSocketError("the daemon sent a reply that is not JSON") from None
+    if not isinstance(reply, dict) or not isinstance(reply.get("ok"), bool):
+        raise ControlSocketError("the daemon sent a reply this client does not understand")
+    return reply
+
+
+def error_reply(error: str) -> dict[str, Any]:
+    return {"ok": False, "error": error}
+
+
+def _jsonable(value: Any) -> Any:
+    if value is None or isinstance(value, bool | int | str):
+        return value
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, Mapping):
+        return {str(key): _jsonable(item) for key, item in value.items()}
+    if isinstance(value, list | tuple | set | frozenset):
+        return [_jsonable(item) for item in value]
+    return str(value)
+
+
+def _short(value: object, limit: int = 40) -> str:
+    text = repr(value)
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+# ---------------------------------------------------------------- the server
+
+
+@dataclass(frozen=True)
+class PeerCredentials:
+    """Who is on the other end (SO_PEERCRED); None where the kernel does not say."""
+
+    pid: int | None
+    uid: int | None
+    gid: int | None
+
+    def as_log_fields(self) -> dict[str, int | None]:
+        return {"peer_pid": self.pid, "peer_uid": self.uid, "peer_gid": self.gid}
+
+
+_UNKNOWN_PEER: Final = PeerCredentials(None, None, None)
+
+
+def peer_credentials(writer: asyncio.StreamWriter) -> PeerCredentials:
+    sock = writer.get_extra_info("socket")
+    try:
+        raw = sock.getsockopt(socket.SOL_SOCKET, socket.SO_PEERCRED, struct.calcsize("3i"))
+        pid, uid, gid = struct.unpack("3i", raw)
+    except (OSError, AttributeError, struct.error):
+        return _UNKNOWN_PEER
+    return PeerCredentials(pid, uid, gid)
+
+
+@dataclass
+class _Session:
+    peer: PeerCredentials
+    holding: bool = False
+
+
+class ControlServer:
+    """The daemon's side of the control socket, run as a supervised service."""
+
+    def __init__(
+        self,
+        path: str | Path,
+        api: ControlApi,
+        *,
+        mode: int = 0o660,
+        max_clients: int = 8,
+        idle_timeout_s: float = 30.0,
+    ) -> None:
+        if max_clients < 1:
+            raise ValueError(f"max_clients must be at least 1 (got {max_clients})")
+        if not idle_timeout_s > 0:
+            raise ValueError(f"idle_timeout_s must be positive (got {idle_timeout_s})")
+        self.path = Path(path)
+        self.api = api
+        self.mode = mode
+        self.max_clients = max_clients
+        self.idle_timeout_s = idle_timeout_s
+        self._clients: dict[asyncio.Task[Any], asyncio.StreamWriter] = {}
+
+    @property
+    def client_count(self) -> int:
+        return len(self._clients)
+
+    async def run(self, ctx: ServiceContext) -> None:
+        """Bind, serve until cancelled, and remove the socket file on the way out."""
+        ctx.beat()
+        sock, identity = await self._bind()
+        try:
+            server = await asyncio.start_unix_server(
+                self._serve_client, sock=sock, limit=MAX_LINE_BYTES
+            )
+        except BaseException:
+            sock.close()
+            self._remove_socket_file(identity)
+            raise
+        log.info("control_socket_listening", path=str(self.path), mode=oct(self.mode))
+        try:
+            while True:
+                ctx.beat()
+                self._check_still_ours(identity)
+                await asyncio.sleep(BEAT_PERIOD_S)
+        finally:
+            server.close()
+            self._remove_socket_file(identity)
+            await self._close_clients()
+            log.info("control_socket_closed", path=str(self.path))
+
+    # ---- binding -----------------------------------------------------------------
+    async def _bind(self) -> tuple[socket.socket, tuple[int, int]]:
+        path = self.path
+        if len(os.fsencode(path)) > MAX_PATH_BYTES:
+            raise PermanentServiceError(
+                f"control socket path {str(path)!r} is {len(os.fsencode(path))} bytes; Unix "
+                f"socket paths are limited to {MAX_PATH_BYTES}: set a shorter "
+                "paths.control_socket"
+            )
+        self._make_parent_directory()
+        await self._remove_stale_socket()
+        sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        identity: tuple[int, int] | None = None
+        try:
+            # Bind under an owner-only umask, then open up to the mode: the socket is never
+            # reachable by more than its owner before the chmod. (The umask is process-wide;
+            # anything another thread creates meanwhile is only more private.)
+            previous_umask = os.umask(0o077)
+            try:
+                sock.bind(os.fspath(path))
+            finally:
+                os.umask(previous_umask)
+            identity = _identity(os.lstat(path))
+            os.chmod(path, self.mode)
+            sock.setblocking(False)
+        except OSError as exc:
+            sock.close()
+            if identity is not None:
+                self._remove_socket_file(identity)
+            if exc.errno == errno.EADDRINUSE:
+                raise  # someone bound it meanwhile: a restart probes again
+            if exc.errno in _PERMANENT_BIND_ERRNOS:
+                raise PermanentServiceError(
+                    f"cannot create the control socket {str(path)!r}: {exc.strerror}"
+                ) from exc
+            raise
+        return sock, identity
+
+    def _make_parent_directory(self) -> None:
+        parent = self.path.parent
+        if parent.is_dir():
+            return
+        try:
+            os.makedirs(parent, mode=0o750, exist_ok=True)
+            os.chmod(parent, 0o750)
+        except OSError as exc:
+            raise PermanentServiceError(
+                f"cannot create the directory {str(parent)!r} for the control socket: "
+                f"{exc.strerror or exc}"
+            ) from exc
+        log.info("control_socket_directory_created", path=str(parent), mode="0o750")
+
+    async def _remove_stale_socket(self) -> None:
+        path = self.path
+        try:
+            info = os.lstat(path)
+        except FileNotFoundError:
+            return
+        if not stat.S_ISSOCK(info.st_mode):
+            raise PermanentServiceError(
+                f"{str(path)!r} exists and is not a socket: refusing to replace it; move it "
+                "away or set another paths.control_socket"
+            )
+        try:
+            async with asyncio.timeout(STALE_PROBE_TIMEOUT_S):
+                _, writer = await asyncio.open_unix_connection(os.fspath(path))
+        except ConnectionRefusedError:
+            os.unlink(path)
+            log.warning("control_socket_stale_removed", path=str(path))
+            return
+        except FileNotFoundError:
+            return
+        except TimeoutError:
+            raise PermanentServiceError(
+                f"{str(path)!r} is a socket another process listens on but does not accept "
+                "connections: another daemon may be running (`systemctl status dbw`)"
+            ) from None
+        except OSError as exc:
+            raise PermanentServiceError(
+                f"cannot check whether {str(path)!r} is in use: {exc.strerror or exc}"
+            ) from exc
+        writer.close()
+        with contextlib.suppress(OSError):
+            await writer.wait_closed()
+        raise PermanentServiceError(
+            f"another daemon is already serving the control socket {str(path)!r}: stop it "
+            "first (`systemctl stop dbw`) or set another paths.control_socket"
+        )
+
+    def _check_still_ours(self, identity: tuple[int, int]) -> None:
+        try:
+            current = _identity(os.lstat(self.path))
+        except FileNotFoundError:
+            current = None
+        if current != identity:
+            raise RuntimeError(f"the control socket {str(self.path)!r} was removed or replaced")
+
+    def _remove_socket_file(self, identity: tuple[int, int]) -> None:
+        """Unlink the socket file if it is still the one we bound (never someone else's)."""
+        with contextlib.suppress(OSError):
+            if _identity(os.lstat(self.path)) == identity:
+                os.unlink(self.path)
+
+    async def _close_clients(self) -> None:
+        """Hang up on every client and wait until their handlers have finished.
+
+        Aborting the transport lets a handler see end-of-stream and return on its own;
+        cancelling it instead would make Python 3.11's stream protocol log the
+        cancellation as an unhandled error.
+        """
+        tasks = list(self._clients)
+        for writer in self._clients.values():
+            writer.transport.abort()
+        if tasks:
+            _, pending = await asyncio.wait(tasks, timeout=CLOSE_CLIENTS_TIMEOUT_S)
+            for task in pending:
+                task.cancel()
+
+    # ---- clients -----------------------------------------------------------------
+    async def _serve_client(
+        self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter
+    ) -> None:
+        peer = peer_credentials(writer)
+        if len(self._clients) >= self.max_clients:
+            log.warning(
+                "control_client_refused", clients=len(self._clients), **peer.as_log_fields()
+            )
+            writer.write(
+                encode_message(
+                    error_reply(
+                        f"too many clients: at most {self.max_clients} at a time; try again later"
+                    )
+                )
+            )
+            writer.close()
+            return
+        task = asyncio.current_task()
+        assert task is not None
+        self._clients[task] = writer
+        session = _Session(peer)
+        log.debug("control_client_connected", **peer.as_log_fields())
+        try:
+            await self._converse(reader, writer, session)
+        except OSError as exc:  # the client went away; nothing of ours depends on it
+            log.debug("control_client_lost", error=repr(exc))
+        except Exception as exc:  # a bug here must cost one connection, never the server
+            log.error("control_client_failed", error=repr(exc), exc_info=exc)
+        finally:
+            del self._clients[task]
+            if session.holding:
+                self._command("release", session, cause="client disconnected while holding")
+            writer.close()
+            log.debug("control_client_disconnected", **peer.as_log_fields())
+
+    async def _converse(
+        self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter, session: _Session
+    ) -> None:
+        while True:
+            try:
+                async with asyncio.timeout(self.idle_timeout_s):
+                    line = await reader.readuntil(b"\n")
+            except TimeoutError:
+                log.info("control_client_idle", idle_s=self.idle_timeout_s)
+                writer.write(
+                    encode_message(
+                        error_reply(f"no request for {self.idle_timeout_s:g} s: closing")
+                    )
+                )
+                return
+            except asyncio.IncompleteReadError:
+                return  # end of stream, possibly mid-line: the client left
+            except asyncio.LimitOverrunError:
+                log.info("control_request_too_long", **session.peer.as_log_fields())
+                await self._send(
+                    writer,
+                    error_reply(
+                        f"request line longer than {MAX_LINE_BYTES} bytes: closing the "
+                        "connection (the rest of that line cannot be framed)"
+                    ),
+                )
+                return
+            if not await self._send(writer, self._answer(line, session)):
+                return
+
+    async def _send(self, writer: asyncio.StreamWriter, reply: Mapping[str, Any]) -> bool:
+        """Write one reply; False if the client does not take it in time."""
+        writer.write(encode_message(reply))
+        try:
+            async with asyncio.timeout(self.idle_timeout_s):
+                await writer.drain()
+        except TimeoutError:
+            log.info("control_client_not_reading", timeout_s=self.idle_timeout_s)
+            return False
+        return True
+
+    def _answer(self, line: bytes, session: _Session) -> dict[str, Any]:
+        try:
+            request = decode_request(line)
+        except RequestError as exc:
+            log.info("control_bad_request", error=str(exc), **session.peer.as_log_fields())
+            return error_reply(str(exc))
+        if isinstance(request, StatusRequest):
+            try:
+                return {"ok": True, "status": self.api.status()}
+            except Exception as exc:
+                log.error("control_status_failed", error=repr(exc), exc_info=exc)
+                return error_reply(f"the daemon could not produce its status: {exc!r}")
+        return self._command(request.name, session)
+
+    def _command(self, name: str, session: _Session, cause: str = "client") -> dict[str, Any]:
+        try:
+            accepted, message = self.api.request(name)
+        except Exception as exc:
+            log.error(
+                "control_command",
+                command=name,
+                verdict="error",
+                error=repr(exc),
+                cause=cause,
+                exc_info=exc,
+                **session.peer.as_log_fields(),
+            )
+            return error_reply(f"the daemon failed to handle {name!r}: {exc!r}")
+        accepted = bool(accepted)
+        message = str(message)
+        log.info(
+            "control_command",
+            command=name,
+            verdict="accepted" if accepted else "refused",
+            message=message,
+            cause=cause,
+            **session.peer.as_log_fields(),
+        )
+        if name == "hold" and accepted:
+            session.holding = True
+        elif name == "release":
+            session.holding = False
+        return {"ok": True, "accepted": accepted, "message": message}
+
+
+def _identity(info: os.stat_result) -> tuple[int, int]:
+    return info.st_dev, info.st_ino
+
+
+# ---------------------------------------------------------------- the client
+
+
+class ControlClient:
+    """One connection to the control socket, for one or many requests.
+
+    ``async with ControlClient(path) as client: reply = await client.call({...})``.
+    Every failure to talk to the daemon raises :class:`ControlSocketError`.
+    """
+
+    def __init__(self, path: str | Path, timeout_s: float = 2.0) -> None:
+        self.path = str(path)
+        self.timeout_s = timeout_s
+        self._reader: asyncio.StreamReader | None = None
+        self._writer: asyncio.StreamWriter | None = None
+        self._unanswered = 0
+
+    async def __aenter__(self) -> ControlClient:
+        await self.connect()
+        return self
+
+    async def __aexit__(self, *_: object) -> None:
+        await self.close()
+
+    async def connect(self) -> None:
+        try:
+            async with asyncio.timeout(self.timeout_s):
+                self._unanswered = 0
+                self._reader, self._writer = await asyncio.open_unix_connection(
+                    self.path, limit=MAX_REPLY_BYTES
+                )
+        except TimeoutError:
+            raise ControlSocketError(
+                f"{self.path}: the daemon did not accept the connection within "
+                f"{self.timeout_s:g} s (overloaded or hung?): `systemctl status dbw`"
+            ) from None
+        except OSError as exc:
+            raise ControlSocketError(_connect_error(self.path, exc)) from None
+
+    async def call(self, request: Mapping[str, Any]) -> dict[str, Any]:
+        """Send one request and return the daemon's reply (which may be an error reply)."""
+        if self._reader is None or self._writer is None:
+            await self.connect()
+        reader, writer = self._reader, self._writer
+        assert reader is not None and writer is not None
+        try:
+            async with asyncio.timeout(self.timeout_s):
+                while self._unanswered:  # replies to requests whose caller was cancelled
+                    await reader.readuntil(b"\n")
+                    self._unanswered -= 1
+                writer.write(encode_message(request))  # buffers the whole line at once
+                self._unanswered += 1
+                await writer.drain()
+                line = await reader.readuntil(b"\n")
+                self._unanswered -= 1
+        except asyncio.CancelledError:
+            # The connection is still in step: the next call skips the replies still due,
+            # so a cancelled status request (Ctrl-C) does not cost the connection.
+            raise
+        except BaseException as exc:
+            self._reader = self._writer = None
+            self._unanswered = 0
+            writer.transport.abort()
+            raise self._exchange_error(exc) from None
+        return decode_reply(line)
+
+    def _exchange_error(self, exc: BaseException) -> BaseException:
+        if isinstance(exc, TimeoutError):
+            return ControlSocketError(
+                f"{self.path}: no reply from the daemon within {self.timeout_s:g} s"
+            )
+        if isinstance(exc, asyncio.IncompleteReadError | ConnectionError):
+            return ControlSocketError(
+                f"{self.path}: the daemon closed the connection before replying "
+                "(stopping, or restarting?): `systemctl status dbw`"
+            )
+        if isinstance(exc, asyncio.LimitOverrunError):
+            return ControlSocketError(
+                f"{self.path}: the daemon's reply is longer than {MAX_REPLY_BYTES} bytes"
+            )
+        if isinstance(exc, OSError):
+            return ControlSocketError(f"{self.path}: {exc.strerror or exc}")
+        return exc
+
+    async def status(self) -> dict[str, Any]:
+        return await self.call({"op": "status"})
+
+    async def command(self, name: str) -> dict[str, Any]:
+        return await self.call({"op": "command", "name": name})
+
+    async def close(self) -> None:
+        writer, self._reader, self._writer = self._writer, None, None
+        self._unanswered = 0
+        if writer is not None:
+            writer.close()
+            with contextlib.suppress(OSError):
+                await writer.wait_closed()
+
+
+def _connect_error(path: str, exc: OSError) -> str:
+    if isinstance(exc, FileNotFoundError):
+        return f"{path}: no control socket there: is the daemon running? `systemctl status dbw`"
+    if isinstance(exc, PermissionError):
+        return (
+            f"{path}: permission denied: you need to be in the dbw group (or root) to use "
+            "the control socket"
+        )
+    if isinstance(exc, ConnectionRefusedError):
+        return (
+            f"{path}: nobody is listening (a socket left behind by a daemon that stopped): "
+            "is the daemon running? `systemctl status dbw`"
+        )
+    return f"{path}: cannot connect to the daemon: {exc.strerror or exc}"
+
+
+async def query(
+    path: str | Path, request: Mapping[str, Any], timeout_s: float = 2.0
+) -> dict[str, Any]:
+    """Send one request on a connection of its own; raise ControlSocketError on failure."""
+    async with ControlClient(path, timeout_s) as client:
+        return await client.call(request)
+
+
+def query_sync(
+    path: str | Path, request: Mapping[str, Any], timeout_s: float = 2.0
+) -> dict[str, Any]:
+    """:func:`query` for code without an event loop (the CLI)."""
+    return asyncio.run(query(path, request, timeout_s))

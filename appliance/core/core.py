@@ -1,0 +1,562 @@
+"""The control core: inputs in, every command of the cycle out, time as an argument.
+
+One ``step`` runs, in this order, what Stanley et al.'s mode control (Fig. 4) and the
+safety layer ask for: judge the age of every input, convert what is fresh, detect the
+operator (hands on the wheel, feet on the pedals), gather fault conditions, feed the mode
+machine its events (e-stop first, then faults, then the operator, then buttons), ask the
+autopilot source for its wish, and pass that wish through arbitration and limits. The
+result is a :class:`CoreOutput` with one command per actuator path; nothing in here
+touches a device. The object holds small rule objects with ``reset()``/``update()``;
+a fresh core (after any restart) is in BOOT and can only reach READY on its own.
+
+Actuation paths (see docs/control.md): steering through the servo board (a position
+set-point in the servo's relative frame, closed through the calibrated pot) and the
+PC104's front set-point; speed through the PC104's own speed loop (pattern + speed
+set-point); the brake board applies the safe-state brake; the throttle board stays
+released (the PC104 drives), so nothing here ever opens a throttle actuator.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+from appliance.config.models import VehicleConfig
+from appliance.core.autopilot import (
+    AutopilotSource,
+    AutopilotWish,
+    Observation,
+    default_pattern,
+    make_source,
+)
+from appliance.core.inputs import ControlInputs
+from appliance.core.observe import Measurements, board_faults, measure, pc104_faults
+from appliance.core.output import SAFE_MODES, CoreOutput, Note, hl_state, printable
+from appliance.core.panel import PanelDecoder, PanelEvents
+from appliance.core.report import core_status
+from appliance.modes import (
+    AUTOMATIC_MODES,
+    Action,
+    BootDone,
+    BrakeTap,
+    EngageConditions,
+    EngagePressed,
+    EStopPressed,
+    EStopReset,
+    Event,
+    FaultCleared,
+    HoldToMovePressed,
+    HoldToMoveReleased,
+    ManualOverridePressed,
+    Mode,
+    ModeParams,
+    ModeState,
+    RefuseEngagement,
+    SelfCheckFailed,
+    SelfCheckPassed,
+    SpeedMinusPressed,
+    SpeedPlusPressed,
+    SteeringOverridden,
+    ThrottlePedalPressed,
+    step,
+)
+from calibration.calfile import Calibration
+from drivers.actuators.messages import (
+    BrakeCommand,
+    Buttons,
+    Lamps,
+    PanelCommand,
+    SteeringCommand,
+    SteeringMode,
+    ThrottleCommand,
+)
+from drivers.pc104.messages import ControlSource, MotionCommand
+from safety.arbitration import OperatorInput, arbitrate
+from safety.consistency import CounterDeltas, ErrorBudget, SteeringTrackingMonitor
+from safety.consistency import SteeringTrackingParams as TrackingParams
+from safety.faults import FaultMonitor
+from safety.limits import ActuatorCommand, CommandLimiter, LimitParams
+from safety.override import OperatorOverride
+from safety.safe_state import SafeBrake, SafeBrakeParams, SafeKind, SpeedRamp, SpeedRampParams
+from safety.staleness import StalenessGuard
+
+BENCH_REQUESTS = (
+    "engage",
+    "disengage",
+    "speed_plus",
+    "speed_minus",
+    "estop",
+    "estop_reset",
+    "hold",
+    "release",
+)
+MAX_DISPLAY = 32
+
+
+_NOT_READY = EngageConditions(
+    fault_active=True,
+    stale_inputs=(),
+    calibration_valid=False,
+    operator_overriding=False,
+    speed_above_limit=True,
+    source_ready=False,
+    source_reason="no cycle has run yet",
+)
+
+
+class ControlCore:
+    def __init__(
+        self,
+        config: VehicleConfig,
+        calibration: Calibration | None,
+        calibration_problem: str = "",
+        autopilot: AutopilotSource | None = None,
+    ) -> None:
+        self.config = config
+        self.calibration = calibration
+        self.calibration_problem = calibration_problem or (
+            "" if calibration is not None else "calibration missing"
+        )
+        self.autopilot = autopilot if autopilot is not None else make_source(config)
+        self.pattern = default_pattern(config.kind)
+        self.mode_params = ModeParams(
+            speed_step_mps=config.engagement.speed_step_mps,
+            max_speed_mps=min(config.engagement.max_set_speed_mps, config.limits.max_speed_mps),
+        )
+        self.staleness = StalenessGuard.from_config(config.staleness)
+        self.override = OperatorOverride.from_config(config.safety, config.limits)
+        self.tracking = SteeringTrackingMonitor(TrackingParams.from_config(config.safety))
+        self.link_budget = ErrorBudget.from_config(config.safety)
+        self.link_deltas = CounterDeltas()
+        self.faults = FaultMonitor()
+        self.limiter = CommandLimiter(LimitParams.from_config(config.limits))
+        self.brake = SafeBrake(SafeBrakeParams.from_config(config.safety, config.limits))
+        self.speed = SpeedRamp(SpeedRampParams.from_config(config.engagement, config.limits))
+        self.panel = PanelDecoder()
+        self.reset()
+
+    def reset(self) -> None:
+        """The state after any (re)start: BOOT, nothing engaged, every rule forgotten."""
+        self.state = ModeState()
+        self.mode_since_s: float | None = None
+        self.self_check_since_s: float | None = None
+        for rule in (
+            self.staleness,
+            self.override,
+            self.tracking,
+            self.link_budget,
+            self.link_deltas,
+            self.faults,
+            self.limiter,
+            self.brake,
+            self.speed,
+            self.panel,
+            self.autopilot,
+        ):
+            rule.reset()
+        self._last_steer_rad: float | None = None
+        self._brake_pedal_was = False
+        self._throttle_pedal_was = False
+        self._held = False
+        self._bench_hold = False
+        self._bench_estop = False
+        self._conditions = _NOT_READY
+        self._measured: Measurements | None = None
+        self._notes: list[Note] = []
+        self.last_output: CoreOutput | None = None
+        self.last_refusal: tuple[str, ...] = ()
+        self.stale: tuple[str, ...] = ()
+
+    # ---- the cycle --------------------------------------------------------------------
+    def step(self, inputs: ControlInputs, now_s: float) -> CoreOutput:
+        self._notes = []
+        stale = self.staleness.update(inputs.ages_s, now_s)
+        self.stale = stale
+        fresh = frozenset(
+            name
+            for name in self.staleness.age_limits_s
+            if not self.staleness.is_stale(name, inputs.ages_s)
+        )
+        m = measure(inputs, fresh, self.calibration)
+        self._measured = m
+        operator = self.override.update(
+            commanded_steer_rad=self._last_steer_rad,
+            measured_steer_rad=m.steer_tyre_rad,
+            servo_torque_nm=m.servo_torque_nm,
+            brake_pedal_pct=m.brake_pedal_pct,
+            brake_actuator_pct=m.brake_actuator_pct,
+            throttle_pedal_pct=m.throttle_pedal_pct,
+            throttle_actuator_pct=m.throttle_actuator_pct,
+            now_s=now_s,
+        )
+        panel = self.panel.update(
+            inputs.panel if "board.panel" in fresh else None, inputs.panel_seq
+        )
+        wish = self._wish(m, inputs, now_s)
+        conditions = self._engage_conditions(stale, m, operator, wish)
+        self._conditions = conditions
+
+        # 1. e-stop outranks everything, seen or remembered
+        if m.estop_reasons or self._bench_estop:
+            self._apply(EStopPressed(), now_s)
+        # 2. bring-up
+        self._self_check(stale, m, now_s)
+        # 3. faults: raised once, cleared once
+        active = self._fault_conditions(inputs, stale, fresh, m, operator, wish, now_s)
+        changes = self.faults.update(active, now_s)
+        for record in changes.raised:
+            self._note("fault_raised", fault=record.key, detail=record.detail)
+        for record in changes.cleared:
+            self._note("fault_cleared", fault=record.key, after_s=round(now_s - record.raised_s, 3))
+        for event in changes.mode_events():
+            self._apply(event, now_s)
+        for latched in self.state.faults:  # e.g. a failed self-check whose problems are gone
+            if latched.reason not in active:
+                self._apply(FaultCleared(latched.reason), now_s)
+        # 4. the operator's hands and feet
+        self._operator_events(operator, m, now_s)
+        # 5. buttons
+        self._panel_events(panel, m, now_s)
+        held = bool(panel.down & Buttons.ENGAGE) or self._bench_hold
+        if held != self._held:
+            self._held = held
+            self._apply(HoldToMovePressed() if held else HoldToMoveReleased(), now_s)
+
+        output = self._commands(operator, m, wish, now_s)
+        self.last_output = output
+        return output
+
+    # ---- bench requests (the control socket) -------------------------------------------
+    def request(self, name: str, now_s: float) -> tuple[bool, str]:
+        """A bench command, decided now against the last cycle's conditions.
+
+        The commands it changes go out with the next cycle (within one period).
+        """
+        m = self._measured
+        speed = m.speed_mps if m is not None and m.speed_mps is not None else 0.0
+        before = self.state
+        match name:
+            case "engage":
+                actions = self._apply(EngagePressed(), now_s)
+            case "disengage":
+                actions = self._apply(ManualOverridePressed(), now_s)
+            case "speed_plus":
+                actions = self._apply(SpeedPlusPressed(speed), now_s)
+            case "speed_minus":
+                actions = self._apply(SpeedMinusPressed(speed), now_s)
+            case "estop":
+                self._bench_estop = True
+                actions = self._apply(EStopPressed(), now_s)
+            case "estop_reset":
+                return self._estop_reset(now_s, "bench")
+            case "hold":
+                self._bench_hold = True
+                return True, "hold-to-move held (bench)"
+            case "release":
+                self._bench_hold = False
+                return True, "hold-to-move released (bench)"
+            case _:
+                return False, f"unknown request {name!r}; known: {', '.join(BENCH_REQUESTS)}"
+        refused = [a for a in actions if isinstance(a, RefuseEngagement)]
+        if refused:
+            return False, "refused: " + "; ".join(refused[0].reasons)
+        if self.state.mode is before.mode and self.state.set_speed_mps == before.set_speed_mps:
+            reason = "; ".join(self.state.last_refusal) or f"no effect in {self.state.mode}"
+            return False, reason
+        return True, f"{before.mode} -> {self.state.mode}"
+
+    def status(self, now_s: float) -> dict[str, Any]:
+        return core_status(self, now_s)
+
+    # ---- pieces of the cycle -------------------------------------------------------------
+    def _apply(self, event: Event, now_s: float) -> list[Action]:
+        before = self.state
+        after, actions = step(before, event, self._conditions, now_s, self.mode_params)
+        self.state = after
+        if after.mode is not before.mode:
+            self.mode_since_s = now_s
+            self._note(
+                "mode_changed",
+                from_mode=str(before.mode),
+                to_mode=str(after.mode),
+                cause=type(event).__name__,
+            )
+            if after.mode in AUTOMATIC_MODES and before.mode not in AUTOMATIC_MODES:
+                self.autopilot.reset()
+                self.limiter.reset()
+            if after.mode is Mode.SPEED_HOLD and before.mode is not Mode.SPEED_HOLD:
+                self.speed.reset(self.speed.setpoint_mps)
+        for action in actions:
+            if isinstance(action, RefuseEngagement) and action.reasons != self.last_refusal:
+                self._note("engage_refused", reasons=list(action.reasons))
+            if isinstance(action, RefuseEngagement):
+                self.last_refusal = action.reasons
+        return actions
+
+    def _note(self, event: str, **fields: Any) -> None:
+        self._notes.append(Note(event, fields))
+
+    def _wish(self, m: Measurements, inputs: ControlInputs, now_s: float) -> AutopilotWish:
+        observation = Observation(now_s, m.speed_mps, m.steer_tyre_rad, inputs.scans)
+        try:
+            return self.autopilot.update(observation)
+        except Exception as exc:  # a broken source must not take the safety layer with it
+            return AutopilotWish(ready=False, reason=f"{type(exc).__name__}: {exc}")
+
+    def _engage_conditions(
+        self,
+        stale: tuple[str, ...],
+        m: Measurements,
+        operator: OperatorInput,
+        wish: AutopilotWish,
+    ) -> EngageConditions:
+        blockers = []
+        if m.pc104_source is not None and m.pc104_source is not ControlSource.AUTOMATIC:
+            blockers.append(f"PC104 under {m.pc104_source} control")
+        elif not m.pc104_ready:
+            blockers.append("PC104 not ready")
+        if m.steer_tyre_rad is None and "board.steering" not in stale:
+            blockers.append("steering angle unknown (pot outside its calibrated range)")
+        if not wish.ready:
+            blockers.append(wish.reason or "unknown")
+        speed = m.speed_mps
+        return EngageConditions(
+            fault_active=bool(self.faults.active_faults),
+            stale_inputs=stale,
+            calibration_valid=self.calibration is not None,
+            operator_overriding=operator.steering_override or operator.brake_pedal,
+            speed_above_limit=speed is None or abs(speed) > self.config.limits.max_engage_speed_mps,
+            source_ready=not blockers,
+            source_reason="; ".join(blockers),
+        )
+
+    def _self_check(self, stale: tuple[str, ...], m: Measurements, now_s: float) -> None:
+        mode = self.state.mode
+        if mode is Mode.BOOT:
+            self._apply(BootDone(), now_s)
+            self.self_check_since_s = now_s
+            mode = self.state.mode
+        if mode is not Mode.SELF_CHECK:
+            return
+        problems = self.self_check_problems(stale, m)
+        if not problems:
+            self._apply(SelfCheckPassed(), now_s)
+            self.self_check_since_s = None
+            return
+        started = self.self_check_since_s if self.self_check_since_s is not None else now_s
+        if now_s - started >= self.config.engagement.self_check_timeout_s:
+            self._note("self_check_failed", problems=list(problems))
+            self._apply(SelfCheckFailed(problems), now_s)
+
+    def self_check_problems(self, stale: tuple[str, ...], m: Measurements) -> tuple[str, ...]:
+        problems = [f"no fresh {name}" for name in stale]
+        if self.calibration is None:
+            problems.append(self.calibration_problem or "calibration missing")
+        elif m.steer_tyre_rad is None and "board.steering" not in stale:
+            problems.append("steering pot outside its calibrated range")
+        return tuple(problems)
+
+    def _fault_conditions(
+        self,
+        inputs: ControlInputs,
+        stale: tuple[str, ...],
+        fresh: frozenset[str],
+        m: Measurements,
+        operator: OperatorInput,
+        wish: AutopilotWish,
+        now_s: float,
+    ) -> dict[str, str]:
+        mode = self.state.mode
+        if mode in (Mode.BOOT, Mode.SELF_CHECK):
+            return {}
+        active: dict[str, str] = {}
+        if self.state.mode is Mode.ERROR:
+            # A failed self-check stays a fault until its problems are gone.
+            for fault in self.state.faults:
+                if fault.reason.startswith("self-check: ") and self.self_check_problems(stale, m):
+                    active[fault.reason] = fault.reason
+        for name in stale:
+            age = inputs.ages_s.get(name, math.inf)
+            limit = self.staleness.age_limits_s[name]
+            shown = "never received" if not math.isfinite(age) else f"{age * 1e3:.0f} ms old"
+            active[f"stale:{name}"] = f"{name} {shown} (limit {limit * 1e3:.0f} ms)"
+        for name, why in inputs.service_faults.items():
+            active[f"service:{name}"] = f"critical service {name} {why}"
+        steering_engaged = mode in AUTOMATIC_MODES
+        active.update(board_faults(inputs, steering_engaged))
+        active.update(pc104_faults(inputs, fresh))
+        deltas = self.link_deltas.update(
+            {"errors": inputs.pc104_link.errors, "good": inputs.pc104_link.good}
+        )
+        if self.link_budget.update(deltas["errors"], deltas["good"]):
+            active["pc104_link_errors"] = (
+                f"PC104 link: CRC/counter errors exhausted the budget of {self.link_budget.limit}"
+            )
+        if self.tracking.update(
+            self._last_steer_rad, m.steer_tyre_rad, operator.steering_override, now_s
+        ):
+            active["steering_tracking"] = (
+                "steering does not follow its command (servo torque loss, slip or lost pot)"
+            )
+        if steering_engaged and not wish.ready:
+            active["autopilot_not_ready"] = f"autopilot source: {wish.reason or 'not ready'}"
+        return active
+
+    def _operator_events(self, operator: OperatorInput, m: Measurements, now_s: float) -> None:
+        if operator.steering_override:
+            if self.state.mode in AUTOMATIC_MODES:
+                self._note("operator_override", what="steering")
+            self._apply(SteeringOverridden(), now_s)
+        cab = m.pc104_source is not None and m.pc104_source is not ControlSource.AUTOMATIC
+        if cab and self.state.mode in AUTOMATIC_MODES:
+            self._note("operator_override", what=f"PC104 under {m.pc104_source} control")
+            self._apply(SteeringOverridden(), now_s)
+        if operator.brake_pedal and not self._brake_pedal_was:
+            if self.state.mode is Mode.SPEED_HOLD:
+                self._note("operator_override", what="brake pedal")
+            self._apply(BrakeTap(), now_s)
+        if operator.throttle_pedal and not self._throttle_pedal_was:
+            if self.state.mode is Mode.SPEED_HOLD:
+                self._note("operator_override", what="throttle pedal")
+            self._apply(ThrottlePedalPressed(), now_s)
+        self._brake_pedal_was = operator.brake_pedal
+        self._throttle_pedal_was = operator.throttle_pedal
+
+    def _panel_events(self, panel: PanelEvents, m: Measurements, now_s: float) -> None:
+        if panel.implausible:
+            self._note(
+                "panel_counter_implausible", buttons=[str(b.name) for b in panel.implausible]
+            )
+        speed = m.speed_mps if m.speed_mps is not None else math.nan
+        for button in panel.presses:
+            if button is Buttons.ENGAGE:
+                self._apply(EngagePressed(), now_s)
+            elif button is Buttons.SPEED_PLUS:
+                self._apply(SpeedPlusPressed(speed if math.isfinite(speed) else 0.0), now_s)
+            elif button is Buttons.SPEED_MINUS:
+                self._apply(SpeedMinusPressed(speed if math.isfinite(speed) else 0.0), now_s)
+            elif button is Buttons.MANUAL_OVERRIDE:
+                if self.state.mode is Mode.ESTOP:
+                    self._estop_reset(now_s, "panel")
+                else:
+                    self._apply(ManualOverridePressed(), now_s)
+
+    def _estop_reset(self, now_s: float, by: str) -> tuple[bool, str]:
+        """The reset procedure: the mushroom twisted out, then the override button."""
+        if self.state.mode is not Mode.ESTOP:
+            return False, f"no e-stop to reset (mode {self.state.mode})"
+        m = self._measured
+        still = m.estop_reasons if m is not None else ()
+        if still:
+            return False, "e-stop still active: " + "; ".join(still)
+        self._bench_estop = False
+        self._apply(EStopReset(), now_s)
+        self._note("estop_reset", by=by, to_mode=str(self.state.mode))
+        return True, f"e-stop reset -> {self.state.mode}"
+
+    # ---- commands -------------------------------------------------------------------------
+    def _commands(
+        self, operator: OperatorInput, m: Measurements, wish: AutopilotWish, now_s: float
+    ) -> CoreOutput:
+        mode = self.state.mode
+        automatic = mode in AUTOMATIC_MODES
+        safe = mode in SAFE_MODES
+        request = ActuatorCommand(wish.steer_tyre_rad if automatic else None, 0.0, 0.0)
+        chosen = arbitrate(operator, safe, request if automatic else None, automatic, False)
+        steer_request = None if chosen is None else chosen.steer_angle_rad
+        limited, violations = self.limiter.update(
+            ActuatorCommand(steer_request, 0.0, 0.0),
+            m.speed_mps if m.speed_mps is not None else 0.0,
+            now_s,
+            m.steer_tyre_rad,
+        )
+        steer_rad = limited.steer_angle_rad if automatic else None
+        if "input_not_finite" in violations:
+            steer_rad = None
+        self._last_steer_rad = steer_rad
+
+        speed_setpoint: float | None = None
+        if automatic:
+            target = self._speed_target(operator, m, wish)
+            stopping = self.config.engagement.hold_to_move and not self.state.hold_to_move_held
+            speed_setpoint = self.speed.update(target, now_s, controlled_stop=stopping)
+        else:
+            self.speed.reset(m.speed_mps if m.speed_mps is not None else 0.0)
+
+        kind = SafeKind.ESTOP if mode is Mode.ESTOP else SafeKind.FAULT if safe else SafeKind.NONE
+        brake_pct = self.brake.update(kind, now_s)
+        return CoreOutput(
+            now_s=now_s,
+            mode=mode,
+            steering=self._steering_command(steer_rad, m),
+            throttle=ThrottleCommand(enable=False),
+            brake=BrakeCommand(enable=True, position_pct=brake_pct)
+            if safe
+            else BrakeCommand(enable=False),
+            panel=self._panel_command(),
+            pc104=self._pc104_command(steer_rad, speed_setpoint, wish),
+            hl_state=hl_state(mode),
+            operator=operator,
+            steer_tyre_rad=steer_rad,
+            speed_setpoint_mps=speed_setpoint,
+            notes=tuple(self._notes),
+        )
+
+    def _speed_target(self, operator: OperatorInput, m: Measurements, wish: AutopilotWish) -> float:
+        cap = self.mode_params.max_speed_mps
+        if wish.max_speed_mps is not None:
+            cap = min(cap, wish.max_speed_mps)
+        if self.state.mode is Mode.SPEED_HOLD and self.state.set_speed_mps is not None:
+            return min(self.state.set_speed_mps, cap)
+        # ENGAGED: speed is the operator's; their throttle pedal is forwarded to the PC104.
+        if operator.brake_pedal or m.throttle_pedal_pct is None:
+            return 0.0
+        return min(cap, cap * max(0.0, m.throttle_pedal_pct) / 100.0)
+
+    def _steering_command(self, steer_rad: float | None, m: Measurements) -> SteeringCommand:
+        calibration = self.calibration
+        if (
+            steer_rad is None
+            or calibration is None
+            or m.servo_position_rad is None
+            or m.steer_wheel_rad is None
+        ):
+            return SteeringCommand(SteeringMode.RELEASE)
+        # The servo's encoder is relative: aim it by the remaining error the pot sees.
+        target_wheel_rad = steer_rad * calibration.steering_ratio
+        setpoint = m.servo_position_rad + (target_wheel_rad - m.steer_wheel_rad)
+        return SteeringCommand(SteeringMode.POSITION, wheel_angle_setpoint_rad=setpoint)
+
+    def _pc104_command(
+        self, steer_rad: float | None, speed_mps: float | None, wish: AutopilotWish
+    ) -> MotionCommand:
+        if speed_mps is None or steer_rad is None:
+            return MotionCommand.stop()
+        return MotionCommand(
+            pattern=wish.pattern or self.pattern,
+            speed_mps=speed_mps,
+            front_steer_rad=steer_rad,
+        )
+
+    def _panel_command(self) -> PanelCommand:
+        state = self.state
+        mode = state.mode
+        lamps = Lamps.NONE
+        if mode in (Mode.ERROR, Mode.ESTOP):
+            lamps |= Lamps.OVERRIDE | Lamps.WARNING
+        if mode in AUTOMATIC_MODES:
+            lamps |= Lamps.ENGAGED
+        match mode:
+            case Mode.SPEED_HOLD:
+                text = f"SPEED HOLD {state.set_speed_mps or 0.0:.2f} m/s"
+            case Mode.ERROR:
+                first = state.faults[0].reason if state.faults else "cleared: press OVERRIDE"
+                text = f"ERROR {first}"
+            case Mode.ESTOP:
+                text = "E-STOP: release, then OVERRIDE"
+            case _:
+                text = str(mode).upper().replace("_", " ")
+        return PanelCommand(lamps, printable(text)[:MAX_DISPLAY])
+
+
+__all__ = ["BENCH_REQUESTS", "ControlCore", "CoreOutput", "Note"]

@@ -1,0 +1,44 @@
+"""What the control core sees each cycle: the latest value of every input and its age.
+
+The control loop builds one :class:`ControlInputs` per cycle from the topics; tests build
+them by hand. Values are the latest ones whatever their age; freshness is judged in the
+core against the config's age limits (``ages_s``), so a stale value is never used as if
+it were fresh, and a missing one is stale (deny by default).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+
+from drivers.actuators.messages import (
+    BrakeTelemetry,
+    PanelTelemetry,
+    SteeringTelemetry,
+    ThrottleTelemetry,
+)
+from drivers.lms111.mounted import MountedScan
+from drivers.pc104.messages import Pc104Status
+
+
+@dataclass(frozen=True)
+class LinkCounts:
+    """Monotonic totals of a link, for the error-budget rule (they may reset on restart)."""
+
+    errors: int = 0  # CRC + counter + length/range failures
+    good: int = 0  # frames accepted
+
+
+@dataclass(frozen=True)
+class ControlInputs:
+    ages_s: Mapping[str, float]
+    steering: SteeringTelemetry | None = None
+    throttle: ThrottleTelemetry | None = None
+    brake: BrakeTelemetry | None = None
+    panel: PanelTelemetry | None = None
+    panel_seq: int | None = None
+    pc104_status: Pc104Status | None = None
+    pc104_link: LinkCounts = LinkCounts()
+    scans: Mapping[str, MountedScan | None] = field(default_factory=dict)
+    # Critical services the supervisor reports as not running (name -> state and reason).
+    service_faults: Mapping[str, str] = field(default_factory=dict)
