@@ -4,7 +4,7 @@ PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
-DEMO_SECONDS ?= 10
+DEMO_SECONDS ?= 25
 # Debian packages the tests need: user-mode Linux (+kmod, can-utils, iproute2) for the vcan
 # HIL tests, systemd for `systemd-analyze verify`.
 TEST_DEBS := user-mode-linux kmod can-utils iproute2 systemd
@@ -14,8 +14,7 @@ SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
 
 demo: venv
 	@echo "== dbw demo: the daemon on the built-in simulated vehicle for $(DEMO_SECONDS) s =="
-	$(BIN)/dbw --log-format console run --config sim --duration-s $(DEMO_SECONDS)
-	@echo "== demo finished: services came up, heartbeats were reported, the daemon stopped cleanly =="
+	BIN=$(BIN) DEMO_SECONDS=$(DEMO_SECONDS) bash tools/demo.sh
 
 test: debian-deps venv lint typecheck unit hil
 

@@ -13,6 +13,7 @@ import click
 
 from appliance import __version__
 from appliance.cli_calibration import calibration
+from appliance.cli_control import CONTROL_COMMANDS
 from appliance.cli_lms111 import lms111
 from appliance.cli_sim import sim
 from appliance.config import BUILTIN_PROFILES, ConfigError, VehicleConfig, load_config
@@ -102,6 +103,8 @@ def config_show(file: str | None, as_json: bool) -> None:
 cli.add_command(lms111)
 cli.add_command(sim)
 cli.add_command(calibration)
+for _command in CONTROL_COMMANDS:
+    cli.add_command(_command)
 
 
 def main() -> None:
