@@ -53,6 +53,7 @@ class SteeringTrackingMonitor:
       ``fault_after_s`` is a fault; exactly at the tolerance is on track.
     - A non-finite ``commanded_rad`` or ``now_s`` is a broken producer or clock: a fault
       at once, whatever ``overriding`` says, and the timer is left as it was.
+
     Time going backwards restarts the timer from the new ``now_s``.
     """
 

@@ -40,7 +40,7 @@ class FaultRecord:
 
 @dataclass(frozen=True)
 class FaultChanges:
-    """What changed in one update: raised and cleared records, each in key order given."""
+    """What changed in one update: raised in the order of ``active``, cleared in raise order."""
 
     raised: tuple[FaultRecord, ...] = ()
     cleared: tuple[FaultRecord, ...] = ()

@@ -71,9 +71,11 @@ class SteeringOverrideParams:
 class SteeringOverrideDetector:
     """True while the operator has the wheel.
 
-    ``commanded_rad`` is the angle automatic steering wants this cycle (None: steering is
-    not engaged), not the arbitrated output: an override releases the output, and a
-    detector fed the released output would end the override it just found.
+    ``commanded_rad`` is the limited set-point the servo was asked to follow (None:
+    steering released). Not the raw request: rate limiting would then count as
+    deviation. A released set-point ends an override at once, so the hysteresis below
+    only acts for a caller that holds the last set-point while the operator steers; a
+    caller that leaves automatic steering on the first override just releases.
 
     - Released (``commanded_rad`` None): nothing to override, never an override; the
       dwell and the override state reset.
@@ -88,13 +90,18 @@ class SteeringOverrideDetector:
       deviation is the stop, not the operator, and does not start an override. A
       deviation away from the stop, near the stop, still counts. The price is that an
       operator holding the wheel back within the margin band is not seen until the
-      command leaves the band or the wheel is pulled inwards past it.
+      command leaves the band or the wheel is pulled inwards past it. With a set-point
+      clamped to the maximum, a deviation towards a stop inside the band is at most
+      ``stop_margin_rad``, so the exemption only matters where the margin reaches the
+      threshold; a physical lock well inside ``max_steer_angle_rad`` is a calibration
+      error this rule does not hide.
     - Unseen: a missing measured angle (no valid pot reading) or any non-finite input
       (angle, torque, ``now_s``) means the detector cannot tell. It returns False, never
       an override it cannot see, sets ``unknown`` for that update (the caller treats it
       as a steering fault) and resets, so a dwell only counts what was seen.
       ``unknown`` is set whether or not steering is commanded: a wheel nobody can see
       is a fault in READY as well, and blocks engagement.
+
     Time going backwards restarts the dwell from the new ``now_s``.
     """
 

@@ -335,6 +335,19 @@ class VehicleConfig(_Model):
                 "engagement.max_set_speed_mps must not exceed limits.max_speed_mps "
                 f"(got {self.engagement.max_set_speed_mps} > {self.limits.max_speed_mps})"
             )
+        engagement = self.engagement
+        if engagement.hold_to_move:
+            # The controlled stop aims at 70 % of the distance (the PC104's speed loop lags).
+            needed = engagement.max_set_speed_mps**2 / (
+                2.0 * engagement.hold_to_move_stop_distance_m * 0.7
+            )
+            if needed > self.safety.full_brake_decel_mps2:
+                raise ValueError(
+                    "engagement.hold_to_move_stop_distance_m is too short to stop from "
+                    f"max_set_speed_mps={engagement.max_set_speed_mps}: it needs "
+                    f"{needed:.1f} m/s^2, more than safety.full_brake_decel_mps2="
+                    f"{self.safety.full_brake_decel_mps2}"
+                )
         control_period_s = 1.0 / self.rates.control_hz
         if self.supervision.control_heartbeat_deadline_s < 2 * control_period_s:
             raise ValueError(
