@@ -169,7 +169,7 @@ class ControlCore:
 
     # ---- the cycle --------------------------------------------------------------------
     def step(self, inputs: ControlInputs, now_s: float) -> CoreOutput:
-        self._notes = []
+        # Notes from bench requests since the last cycle go out with this cycle's output.
         stale = self.staleness.update(inputs.ages_s, now_s)
         self.stale = stale
         fresh = frozenset(
@@ -223,6 +223,7 @@ class ControlCore:
             self._apply(HoldToMovePressed() if held else HoldToMoveReleased(), now_s)
 
         output = self._commands(operator, m, wish, now_s)
+        self._notes = []
         self.last_output = output
         return output
 
