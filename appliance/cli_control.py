@@ -102,7 +102,9 @@ def _faults(doc: dict[str, Any]) -> list[str]:
     lines = []
     if "faults" in doc:
         faults = [_dict(fault) for fault in _list(doc.get("faults"))]
-        if not faults:
+        if not isinstance(doc.get("faults"), list):
+            lines.append(f"faults: unreadable ({_text(doc.get('faults'), 40)})")
+        elif not faults:
             lines.append("faults: none")
         else:
             lines.append(f"faults ({len(faults)}):")
@@ -130,7 +132,12 @@ def _inputs(doc: dict[str, Any]) -> list[str]:
     rows = []
     for name, raw in inputs.items():
         entry = _dict(raw)
-        age = _number(entry.get("age_s"))
+        age = entry.get("age_s", "?")
+        age_s = _finite(age)
+        if age is None or (_number(age) is not None and age_s is None):
+            age_text = "never"  # null or infinite: nothing has arrived yet
+        else:
+            age_text = format_duration(age_s) if age_s is not None else "?"
         limit_s = _finite(entry.get("limit_s"))
         flags = []
         if entry.get("stale") is True:
@@ -140,7 +147,7 @@ def _inputs(doc: dict[str, Any]) -> list[str]:
         rows.append(
             (
                 _text(name),
-                "never" if age is None or math.isinf(age) else format_duration(age),
+                age_text,
                 format_duration(limit_s) if limit_s is not None else "-",
                 " ".join(flags),
             )
@@ -366,7 +373,7 @@ def _report(outcome: _Outcome) -> None:
     sys.exit(outcome.exit_code)
 
 
-def _command(cli_name: str, op_name: str, help_text: str) -> click.Command:
+def _command(cli_name: str, op_name: str, help_text: str, unsent_hint: str = "") -> click.Command:
     @_socket_options
     def send(socket_path: str | None, config_name: str | None) -> None:
         path = _socket_path(socket_path, config_name)
@@ -379,6 +386,8 @@ def _command(cli_name: str, op_name: str, help_text: str) -> click.Command:
         try:
             asyncio.run(main())
         except ControlSocketError as exc:
+            if unsent_hint:
+                click.echo(unsent_hint, err=True)
             _fail(exc)
         _report(outcome)
 
@@ -386,7 +395,9 @@ def _command(cli_name: str, op_name: str, help_text: str) -> click.Command:
 
 
 engage = _command(
-    "engage", "engage", "Engage automatic control (what the panel's engage button does)."
+    "engage",
+    "engage",
+    "Engage automatic steering, as the panel's engage button does (READY to ENGAGED).",
 )
 disengage = _command(
     "disengage",
@@ -394,13 +405,22 @@ disengage = _command(
     "Hand everything back to the operator (the manual-override button); in ERROR with "
     "the faults cleared, return to READY.",
 )
-speed_up = _command("speed-up", "speed_plus", "Raise the set speed by one step (the + button).")
-speed_down = _command(
-    "speed-down", "speed_minus", "Lower the set speed by one step (the - button)."
+speed_up = _command(
+    "speed-up",
+    "speed_plus",
+    "The + button: raise the set speed one step (from ENGAGED, start speed hold).",
 )
-estop = _command("estop", "estop", "Emergency stop: full brake, latched until estop-reset.")
+speed_down = _command("speed-down", "speed_minus", "The - button: lower the set speed one step.")
+estop = _command(
+    "estop",
+    "estop",
+    "Emergency stop: brake fully and latch ESTOP until estop-reset.",
+    unsent_hint="THE E-STOP WAS NOT SENT: use the vehicle's e-stop button.",
+)
 estop_reset = _command(
-    "estop-reset", "estop_reset", "Clear a latched emergency stop (the vehicle stays READY)."
+    "estop-reset",
+    "estop_reset",
+    "Complete the e-stop reset: leave ESTOP for READY at best (never engaged).",
 )
 
 

@@ -1,0 +1,213 @@
+"""`dbw status`'s human view: everything the daemon reports, and nothing that can crash it."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from appliance.cli_control import format_duration, render_status
+
+FULL: dict[str, Any] = {
+    "vehicle": "sim",
+    "mode": "speed_hold",
+    "mode_since_s": 12.3,
+    "uptime_s": 40.1,
+    "set_speed_mps": 1.5,
+    "measured_speed_mps": 1.48,
+    "hold_to_move": {"required": True, "held": False},
+    "estop_latched": True,
+    "last_refusal": ["critical input stale: scan.left", "brake pedal pressed"],
+    "faults": [{"key": "stale:board.steering", "detail": "no frame for 0.3 s", "since_s": 3.2}],
+    "fault_history": [
+        {"key": "stale:scan.right", "detail": "...", "raised_s": 1.0, "cleared_s": 2.0}
+    ],
+    "inputs": {
+        "board.steering": {"age_s": 0.012, "limit_s": 0.05, "stale": False, "critical": True},
+        "scan.left": {"age_s": None, "limit_s": 0.1, "stale": True, "critical": True},
+        "scan.right": {"age_s": math.inf, "limit_s": 0.1, "stale": True, "critical": True},
+        "panel": {"age_s": 0.05, "limit_s": 0.2, "stale": False, "critical": False},
+    },
+    "commands": {
+        "steering": "position 0.031 rad",
+        "throttle": "released",
+        "brake": "released 0 %",
+        "pc104": "counter_steer 1.50 m/s front 0.031 rad",
+        "lamps": "engaged",
+    },
+    "overrides": {"steering": False, "brake_pedal": True, "throttle_pedal": False},
+    "loop": {
+        "rate_hz": 50.0,
+        "cycles": 2000,
+        "overruns": 1,
+        "jitter_p99_ms": 0.8,
+        "step_p99_ms": 0.3,
+    },
+    "services": {"control": "running beat 3 ms ago", "lms111_left": "backoff, 2 restart(s)"},
+}
+
+
+def line_with(text: str, needle: str) -> str:
+    matches = [line for line in text.splitlines() if needle in line]
+    assert matches, f"no line with {needle!r} in:\n{text}"
+    return matches[0]
+
+
+def row(text: str, name: str) -> list[str]:
+    """The words of the table row that starts with ``name``."""
+    rows = [line.split() for line in text.splitlines() if line.split()[:1] == [name]]
+    assert len(rows) == 1, f"no single row {name!r} in:\n{text}"
+    return rows[0]
+
+
+def test_full_document() -> None:
+    text = render_status(FULL)
+    lines = text.splitlines()
+    assert lines[0] == "SPEED_HOLD for 12.3 s  (vehicle sim, up 40.1 s)"
+    assert lines[1] == "speed: set 1.50 m/s, measured 1.48 m/s"
+    assert "hold-to-move: required, not held" in lines
+    assert line_with(text, "E-STOP LATCHED")
+    assert "  - critical input stale: scan.left" in lines
+    assert "  - brake pedal pressed" in lines
+    assert "  stale:board.steering: no frame for 0.3 s (for 3.2 s)" in lines
+    assert "fault history: 1 cleared, latest stale:scan.right" in lines
+
+    assert row(text, "board.steering") == ["board.steering", "12", "ms", "50", "ms", "critical"]
+    assert row(text, "scan.left") == [
+        "scan.left",
+        "never",
+        "100",
+        "ms",
+        "STALE",
+        "critical",
+    ]
+    assert row(text, "scan.right")[1] == "never"  # infinite age
+    assert row(text, "panel") == ["panel", "50", "ms", "200", "ms"]
+
+    assert line_with(text, "pc104").split(maxsplit=1) == [
+        "pc104",
+        "counter_steer 1.50 m/s front 0.031 rad",
+    ]
+    assert "overrides: brake_pedal" in lines
+    assert "loop: 50.0 Hz, 2000 cycles, 1 overruns, jitter p99 0.80 ms, step p99 0.30 ms" in lines
+    assert line_with(text, "lms111_left").split(maxsplit=1)[1] == "backoff, 2 restart(s)"
+
+    # The order a person reads it in: mode, speed, refusals, faults, inputs, commands,
+    # loop, services.
+    order = [
+        "SPEED_HOLD",
+        "speed:",
+        "last refusal:",
+        "faults (1):",
+        "inputs:",
+        "commands:",
+        "loop:",
+        "services:",
+    ]
+    positions = [text.index(marker) for marker in order]
+    assert positions == sorted(positions)
+
+
+def test_columns_of_the_inputs_table_line_up() -> None:
+    _, header, *rows = render_status({"inputs": FULL["inputs"]}).splitlines()
+    age_end = header.index("age") + len("age")
+    limit_end = header.index("limit") + len("limit")
+    for line in rows:
+        words = line.split()
+        age = "never" if words[1] == "never" else f"{words[1]} {words[2]}"
+        limit = " ".join(words[2:4] if age == "never" else words[3:5])
+        assert line.index(age, len(words[0]) + 2) + len(age) == age_end, line
+        assert line.index(limit, age_end) + len(limit) == limit_end, line
+
+
+def test_empty_document() -> None:
+    assert render_status({}) == "UNKNOWN MODE"
+
+
+def test_a_quiet_daemon_says_none_where_it_reported_nothing() -> None:
+    text = render_status({"mode": "ready", "faults": [], "overrides": {"steering": False}})
+    assert text.splitlines() == ["READY", "faults: none", "overrides: none"]
+
+
+@pytest.mark.parametrize(
+    "doc",
+    [
+        {"mode": 5, "mode_since_s": "long", "uptime_s": [1]},
+        {"mode": None, "set_speed_mps": "fast", "measured_speed_mps": True},
+        {"hold_to_move": 3, "estop_latched": "yes", "last_refusal": "one reason"},
+        {"faults": "none at all", "fault_history": {"a": 1}},
+        {"faults": [None, 3, {"since_s": "x"}, {"key": {"nested": [1, 2]}}]},
+        {"inputs": [1, 2], "commands": "x", "overrides": [True], "services": None},
+        {"inputs": {"a": 5, "b": {"age_s": True, "limit_s": "x"}, "c": {"age_s": -1e308}}},
+        {"inputs": {"": {}}, "commands": {"": None}, "services": {"x" * 500: "y" * 500}},
+        {"loop": {"rate_hz": "fast", "cycles": 10**400, "overruns": float("nan")}},
+        {"loop": [1], "mode_since_s": float("inf"), "uptime_s": -5.0, "vehicle": {"x": 1}},
+        {"mode": "\x1b[2J\x07ready\nnow", "last_refusal": ["\x1b[31mred\x1b[0m"]},
+        {(1, 2): "tuple key", 3: 4, "commands": {(1,): object()}},
+    ],
+)
+def test_garbage_is_rendered_without_crashing(doc: dict[str, Any]) -> None:
+    text = render_status(doc)
+    assert text.splitlines()[0]
+    assert "\x1b" not in text and "\x07" not in text  # no terminal control from the daemon
+    assert all(len(line) < 400 for line in text.splitlines())
+
+
+def test_unreadable_faults_are_not_shown_as_none() -> None:
+    assert "faults: unreadable" in render_status({"faults": "oops"})
+    assert row(render_status({"inputs": {"a": 5}}), "a")[1] == "?"
+
+
+def test_not_even_a_dict() -> None:
+    assert render_status([1, 2]) == "UNKNOWN MODE"  # type: ignore[arg-type]
+
+
+JSON = st.recursive(
+    st.none() | st.booleans() | st.integers() | st.floats() | st.text(max_size=20),
+    lambda children: (
+        st.lists(children, max_size=4) | st.dictionaries(st.text(max_size=10), children, max_size=4)
+    ),
+    max_leaves=20,
+)
+KEYS = st.sampled_from(sorted(FULL)) | st.text(max_size=10)
+
+
+def printable(text: str) -> bool:
+    return all(ch.isprintable() for line in text.split("\n") for ch in line)
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.dictionaries(KEYS, JSON, max_size=8))
+def test_any_json_document_renders_as_printable_lines(doc: dict[str, Any]) -> None:
+    text = render_status(doc)
+    assert text.split("\n")[0]
+    assert printable(text)
+
+
+@settings(max_examples=100, deadline=None)
+@given(st.sampled_from(sorted(FULL)), JSON)
+def test_any_value_in_any_slot_of_a_full_document_renders(key: str, value: Any) -> None:
+    text = render_status({**FULL, key: value})
+    assert printable(text)
+    if key != "mode":
+        assert text.startswith("SPEED_HOLD")
+
+
+@pytest.mark.parametrize(
+    ("seconds", "text"),
+    [
+        (0.012, "12 ms"),
+        (0.0, "0 ms"),
+        (12.34, "12.3 s"),
+        (119.9, "119.9 s"),
+        (125.0, "2 min 5 s"),
+        (7300.0, "2 h 1 min"),
+        (math.inf, "never"),
+        (math.nan, "never"),
+    ],
+)
+def test_format_duration(seconds: float, text: str) -> None:
+    assert format_duration(seconds) == text
