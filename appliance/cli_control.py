@@ -10,6 +10,7 @@ from __future__ import annotations
 import asyncio
 import json
 import math
+import os
 import sys
 import time
 from collections.abc import Callable
@@ -248,16 +249,26 @@ def _socket_options(command: Callable[..., None]) -> Callable[..., None]:
         "socket_path",
         metavar="PATH",
         default=None,
-        help="The daemon's control socket. Default: paths.control_socket of --config.",
+        help="The daemon's control socket. Default: paths.control_socket of --config "
+        f"(else $DBW_CONFIG, else {INSTALLED_CONFIG} if it exists, else the sim profile).",
     )(command)
     return click.option("--config", "config_name", metavar="FILE|PROFILE", help=_CONFIG_HELP)(
         command
     )
 
 
+# Where the systemd unit's vehicle file lives (README, "Running on the vehicle"): on the
+# vehicle PC, `dbw status` with no options talks to the daemon systemd runs.
+INSTALLED_CONFIG = "/etc/dbw/vehicle.toml"
+
+
 def _socket_path(socket_path: str | None, config_name: str | None) -> str:
     if socket_path:
         return socket_path
+    if config_name is None:
+        config_name = os.environ.get("DBW_CONFIG") or (
+            INSTALLED_CONFIG if os.path.exists(INSTALLED_CONFIG) else None
+        )
     try:
         return load_config(config_name).paths.control_socket
     except ConfigError as exc:
