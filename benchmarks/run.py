@@ -13,6 +13,7 @@ BENCHMARKS = [
     "benchmarks.bench_actuators",
     "benchmarks.bench_lms111_stream",
     "benchmarks.bench_pc104",
+    "benchmarks.bench_control",
 ]
 
 

@@ -97,6 +97,8 @@ class Pc104Client:
         self._state = HighLevelState.STANDBY
         self._counters = {protocol.spec_for(t).frame_id: 0 for t in (MotionCommand, HlHeartbeat)}
         self._link: BusLink | None = None
+        self._next_command_s = self._next_heartbeat_s = -math.inf
+        self._last_command_sent_s = -math.inf
         self._status: Pc104Status | None = None
         self._errors = {reason: 0 for reason in ErrorReason}
         self._sent = self._dropped = self._received = self._reconnects = 0
@@ -119,12 +121,31 @@ class Pc104Client:
         """Make ``command`` the one sent every period; raises CommandRefused at once (in
         the caller) if it is outside the DBC, so it never becomes the latest command."""
         protocol.encode(command, 0)
+        previous = self._command
         self._command = command
         self._command_s = self._clock() if now_s is None else now_s
+        # A change of pattern (STOP above all) goes on the wire now, not at the next tick
+        # of the periodic sender: a fault or an override must reach the PC104 within the
+        # control cycle. Other changes wait for the tick unless half a period has passed,
+        # which phase-locks the frames to the control loop without flooding the bus.
+        link = self._link
+        if link is None:
+            return
+        now = self._clock()
+        urgent = previous is None or previous.pattern is not command.pattern
+        if urgent or now - self._last_command_sent_s >= self.params.command_period_s / 2:
+            self._send_command_frame(link, now)
+            self._next_command_s = now + self.params.command_period_s
 
     def set_state(self, state: HighLevelState) -> None:
-        """The high-level state announced in HL_Heartbeat."""
+        """The high-level state announced in HL_Heartbeat; a change is sent at once."""
+        changed = state is not self._state
         self._state = state
+        link = self._link
+        if changed and link is not None:
+            now = self._clock()
+            self._transmit(link, HlHeartbeat(state), now)
+            self._next_heartbeat_s = now + self._heartbeat_period_s
 
     def health(self, now_s: float | None = None) -> LinkHealth:
         now_s = self._clock() if now_s is None else now_s
@@ -203,19 +224,23 @@ class Pc104Client:
 
     async def _serve(self, link: BusLink, beat: Callable[[], None]) -> None:
         now_s = self._clock()
-        next_command_s = next_heartbeat_s = now_s
+        self._next_command_s = self._next_heartbeat_s = now_s
         while True:
             link.check()
             now_s = self._clock()
-            if now_s >= next_command_s:
+            if now_s >= self._next_command_s:
                 self._send_command_frame(link, now_s)
-                next_command_s = next_deadline(next_command_s, self.params.command_period_s, now_s)
-            if now_s >= next_heartbeat_s:
+                self._next_command_s = next_deadline(
+                    self._next_command_s, self.params.command_period_s, now_s
+                )
+            if now_s >= self._next_heartbeat_s:
                 self._transmit(link, HlHeartbeat(self._state), now_s)
-                next_heartbeat_s = next_deadline(next_heartbeat_s, self._heartbeat_period_s, now_s)
+                self._next_heartbeat_s = next_deadline(
+                    self._next_heartbeat_s, self._heartbeat_period_s, now_s
+                )
             self._watch(link, now_s)
             beat()
-            wake_s = min(next_command_s, next_heartbeat_s)
+            wake_s = min(self._next_command_s, self._next_heartbeat_s)
             status_monitor = self.monitors[self._status_id]
             if not status_monitor.stale(now_s):
                 wake_s = min(wake_s, status_monitor.stale_deadline_s() + 1e-4)
@@ -241,6 +266,7 @@ class Pc104Client:
             self._ep_hold.occur(now_s, reason=why)
         elif not why:
             self._ep_hold.clear(now_s)
+        self._last_command_sent_s = now_s
         self._transmit(link, command, now_s)
 
     def _transmit(self, link: BusLink, message: MotionCommand | HlHeartbeat, now_s: float) -> None:
