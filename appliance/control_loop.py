@@ -22,6 +22,11 @@ from typing import Any, Protocol
 
 import numpy as np
 
+# np.percentile imports numpy.ma lazily on its first call: a 15-70 ms stall of the event
+# loop, once, after the daemon is READY (enough to make the steering pot stale). Import it
+# now, at start-up.
+import numpy.ma
+
 from appliance.core.core import ControlCore, CoreOutput
 from appliance.core.inputs import ControlInputs, LinkCounts
 from appliance.logs import get_logger

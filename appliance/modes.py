@@ -391,7 +391,12 @@ def step(
             if mode is not Mode.READY:
                 if mode in AUTOMATIC_MODES:
                     return state, []
-                reasons = (f"cannot engage from {mode}",)
+                why = f"cannot engage from {mode}"
+                if mode is Mode.ERROR and state.faults:
+                    why += " (faults: " + ", ".join(f.reason for f in state.faults) + ")"
+                elif mode is Mode.ERROR:
+                    why += " (faults cleared: press manual override first)"
+                reasons = (why,)
                 return replace(state, last_refusal=reasons), [RefuseEngagement(reasons)]
             reasons = refusal_reasons(state, conditions)
             if reasons:

@@ -260,7 +260,7 @@ class ControlCore:
                 return False, f"unknown request {name!r}; known: {', '.join(BENCH_REQUESTS)}"
         refused = [a for a in actions if isinstance(a, RefuseEngagement)]
         if refused:
-            return False, "refused: " + "; ".join(refused[0].reasons)
+            return False, "; ".join(refused[0].reasons)
         if self.state.mode is before.mode and self.state.set_speed_mps == before.set_speed_mps:
             reason = "; ".join(self.state.last_refusal) or f"no effect in {self.state.mode}"
             return False, reason
