@@ -20,8 +20,6 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import errno
-import json
-import math
 import os
 import socket
 import stat
@@ -31,23 +29,25 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Final, Protocol
 
+from appliance.control_protocol import (
+    COMMAND_NAMES,
+    MAX_LINE_BYTES,
+    OPS,
+    CommandRequest,
+    ControlSocketError,
+    Request,
+    RequestError,
+    StatusRequest,
+    decode_reply,
+    decode_request,
+    encode_message,
+    error_reply,
+)
 from appliance.logs import get_logger
 from appliance.supervisor import PermanentServiceError, ServiceContext
 
 log = get_logger("control_socket")
 
-COMMAND_NAMES: Final[tuple[str, ...]] = (
-    "engage",
-    "disengage",
-    "speed_plus",
-    "speed_minus",
-    "estop",
-    "estop_reset",
-    "hold",
-    "release",
-)
-OPS: Final[tuple[str, ...]] = ("status", "command")
-MAX_LINE_BYTES: Final = 8 * 1024
 MAX_REPLY_BYTES: Final = 1024 * 1024  # a status document with a long fault history
 MAX_PATH_BYTES: Final = 107  # sun_path is 108 bytes including the terminating NUL
 BEAT_PERIOD_S: Final = 0.1
@@ -68,111 +68,6 @@ class ControlApi(Protocol):
     def request(self, name: str) -> tuple[bool, str]:
         """Ask for one of :data:`COMMAND_NAMES`; (accepted, message). Must not block."""
         ...
-
-
-class ControlSocketError(Exception):
-    """The client cannot talk to the daemon; the message says why and what to do."""
-
-
-class RequestError(Exception):
-    """A request line that is not a valid request; the message becomes the error reply."""
-
-
-# ---------------------------------------------------------------- the protocol (no I/O)
-
-
-@dataclass(frozen=True)
-class StatusRequest:
-    pass
-
-
-@dataclass(frozen=True)
-class CommandRequest:
-    name: str
-
-
-Request = StatusRequest | CommandRequest
-
-_FIELDS: Final[dict[str, frozenset[str]]] = {
-    "status": frozenset({"op"}),
-    "command": frozenset({"op", "name"}),
-}
-
-
-def decode_request(line: bytes) -> Request:
-    """Parse one request line (with or without its newline); raise only RequestError."""
-    try:
-        text = line.decode("utf-8")
-    except UnicodeDecodeError:
-        raise RequestError("request is not UTF-8 text") from None
-    if not text.strip():
-        raise RequestError('empty request: send one JSON object per line, e.g. {"op": "status"}')
-    try:
-        message = json.loads(text)
-    except (ValueError, RecursionError) as exc:
-        raise RequestError(f"request is not valid JSON: {exc}") from None
-    if not isinstance(message, dict):
-        raise RequestError(
-            f'request must be a JSON object, got {type(message).__name__}: e.g. {{"op": "status"}}'
-        )
-    op = message.get("op")
-    if op not in OPS:
-        what = "missing 'op'" if "op" not in message else f"unknown op {_short(op)}"
-        raise RequestError(f"{what}: known ops are {', '.join(OPS)}")
-    assert isinstance(op, str)
-    unknown = sorted(set(message) - _FIELDS[op])
-    if unknown:
-        raise RequestError(
-            f"unknown field(s) for op {op!r}: {', '.join(_short(key) for key in unknown)} "
-            f"(known: {', '.join(sorted(_FIELDS[op]))})"
-        )
-    if op == "status":
-        return StatusRequest()
-    name = message.get("name")
-    if name not in COMMAND_NAMES:
-        what = (
-            "missing command 'name'" if "name" not in message else f"unknown command {_short(name)}"
-        )
-        raise RequestError(f"{what}: known commands are {', '.join(COMMAND_NAMES)}")
-    assert isinstance(name, str)
-    return CommandRequest(name)
-
-
-def encode_message(message: Mapping[str, Any]) -> bytes:
-    """One line of strict JSON: non-finite numbers become null, anything else odd a string."""
-    return json.dumps(_jsonable(message), allow_nan=False, separators=(",", ":")).encode() + b"\n"
-
-
-def decode_reply(line: bytes) -> dict[str, Any]:
-    """Parse one reply line; raise only ControlSocketError."""
-    try:
-        reply = json.loads(line.decode("utf-8"))
-    except (UnicodeDecodeError, ValueError, RecursionError):
-        raise ControlSocketError("the daemon sent a reply that is not JSON") from None
-    if not isinstance(reply, dict) or not isinstance(reply.get("ok"), bool):
-        raise ControlSocketError("the daemon sent a reply this client does not understand")
-    return reply
-
-
-def error_reply(error: str) -> dict[str, Any]:
-    return {"ok": False, "error": error}
-
-
-def _jsonable(value: Any) -> Any:
-    if value is None or isinstance(value, bool | int | str):
-        return value
-    if isinstance(value, float):
-        return value if math.isfinite(value) else None
-    if isinstance(value, Mapping):
-        return {str(key): _jsonable(item) for key, item in value.items()}
-    if isinstance(value, list | tuple | set | frozenset):
-        return [_jsonable(item) for item in value]
-    return str(value)
-
-
-def _short(value: object, limit: int = 40) -> str:
-    text = repr(value)
-    return text if len(text) <= limit else text[: limit - 3] + "..."
 
 
 # ---------------------------------------------------------------- the server
@@ -632,3 +527,24 @@ def query_sync(
 ) -> dict[str, Any]:
     """:func:`query` for code without an event loop (the CLI)."""
     return asyncio.run(query(path, request, timeout_s))
+
+
+__all__ = [
+    "COMMAND_NAMES",
+    "MAX_LINE_BYTES",
+    "OPS",
+    "CommandRequest",
+    "ControlApi",
+    "ControlClient",
+    "ControlServer",
+    "ControlSocketError",
+    "Request",
+    "RequestError",
+    "StatusRequest",
+    "decode_reply",
+    "decode_request",
+    "encode_message",
+    "error_reply",
+    "query",
+    "query_sync",
+]

@@ -1,0 +1,132 @@
+"""The control socket's protocol, without I/O: request lines in, typed requests out.
+
+Newline-delimited JSON, one reply per request (see :mod:`appliance.control_socket`). Kept
+pure so the parser can be fuzzed and tested on its own: a line is a valid request, or it
+raises :class:`RequestError` and nothing else.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any, Final
+
+COMMAND_NAMES: Final[tuple[str, ...]] = (
+    "engage",
+    "disengage",
+    "speed_plus",
+    "speed_minus",
+    "estop",
+    "estop_reset",
+    "hold",
+    "release",
+)
+OPS: Final[tuple[str, ...]] = ("status", "command")
+MAX_LINE_BYTES: Final = 8 * 1024
+
+
+class ControlSocketError(Exception):
+    """The client cannot talk to the daemon; the message says why and what to do."""
+
+
+class RequestError(Exception):
+    """A request line that is not a valid request; the message becomes the error reply."""
+
+
+# ---------------------------------------------------------------- the protocol (no I/O)
+
+
+@dataclass(frozen=True)
+class StatusRequest:
+    pass
+
+
+@dataclass(frozen=True)
+class CommandRequest:
+    name: str
+
+
+Request = StatusRequest | CommandRequest
+
+_FIELDS: Final[dict[str, frozenset[str]]] = {
+    "status": frozenset({"op"}),
+    "command": frozenset({"op", "name"}),
+}
+
+
+def decode_request(line: bytes) -> Request:
+    """Parse one request line (with or without its newline); raise only RequestError."""
+    try:
+        text = line.decode("utf-8")
+    except UnicodeDecodeError:
+        raise RequestError("request is not UTF-8 text") from None
+    if not text.strip():
+        raise RequestError('empty request: send one JSON object per line, e.g. {"op": "status"}')
+    try:
+        message = json.loads(text)
+    except (ValueError, RecursionError) as exc:
+        raise RequestError(f"request is not valid JSON: {exc}") from None
+    if not isinstance(message, dict):
+        raise RequestError(
+            f'request must be a JSON object, got {type(message).__name__}: e.g. {{"op": "status"}}'
+        )
+    op = message.get("op")
+    if op not in OPS:
+        what = "missing 'op'" if "op" not in message else f"unknown op {_short(op)}"
+        raise RequestError(f"{what}: known ops are {', '.join(OPS)}")
+    assert isinstance(op, str)
+    unknown = sorted(set(message) - _FIELDS[op])
+    if unknown:
+        raise RequestError(
+            f"unknown field(s) for op {op!r}: {', '.join(_short(key) for key in unknown)} "
+            f"(known: {', '.join(sorted(_FIELDS[op]))})"
+        )
+    if op == "status":
+        return StatusRequest()
+    name = message.get("name")
+    if name not in COMMAND_NAMES:
+        what = (
+            "missing command 'name'" if "name" not in message else f"unknown command {_short(name)}"
+        )
+        raise RequestError(f"{what}: known commands are {', '.join(COMMAND_NAMES)}")
+    assert isinstance(name, str)
+    return CommandRequest(name)
+
+
+def encode_message(message: Mapping[str, Any]) -> bytes:
+    """One line of strict JSON: non-finite numbers become null, anything else odd a string."""
+    return json.dumps(_jsonable(message), allow_nan=False, separators=(",", ":")).encode() + b"\n"
+
+
+def decode_reply(line: bytes) -> dict[str, Any]:
+    """Parse one reply line; raise only ControlSocketError."""
+    try:
+        reply = json.loads(line.decode("utf-8"))
+    except (UnicodeDecodeError, ValueError, RecursionError):
+        raise ControlSocketError("the daemon sent a reply that is not JSON") from None
+    if not isinstance(reply, dict) or not isinstance(reply.get("ok"), bool):
+        raise ControlSocketError("the daemon sent a reply this client does not understand")
+    return reply
+
+
+def error_reply(error: str) -> dict[str, Any]:
+    return {"ok": False, "error": error}
+
+
+def _jsonable(value: Any) -> Any:
+    if value is None or isinstance(value, bool | int | str):
+        return value
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, Mapping):
+        return {str(key): _jsonable(item) for key, item in value.items()}
+    if isinstance(value, list | tuple | set | frozenset):
+        return [_jsonable(item) for item in value]
+    return str(value)
+
+
+def _short(value: object, limit: int = 40) -> str:
+    text = repr(value)
+    return text if len(text) <= limit else text[: limit - 3] + "..."
