@@ -26,10 +26,12 @@ from appliance.control_loop import ControlLoop, TopicInputs
 from appliance.control_socket import ControlServer
 from appliance.core.autopilot import AutopilotSource
 from appliance.core.core import ControlCore
+from appliance.core.output import CoreOutput
 from appliance.logs import get_logger
 from appliance.modes import Mode
 from appliance.supervisor import ServiceContext, ServiceSpec, ServiceState, Supervisor
 from appliance.systemd_notify import SystemdNotifier
+from appliance.topics import Topic
 from appliance.vehicle_io import (
     VehicleCommandSink,
     VehicleIO,
@@ -110,6 +112,11 @@ class Daemon:
             clock=clock,
         )
         self.control.sinks.append(VehicleCommandSink(self.io, self.control.lease_s))
+        # The status topic: every cycle's output (mode, commands, notes), for recorders and
+        # any in-process consumer; `dbw status` is its view from outside the process.
+        self.status_topic: Topic[CoreOutput] = Topic("control.status")
+        self.io.topics.register(self.status_topic.name, self.status_topic)
+        self.control.on_output.append(self._publish_status)
         self.control_server = ControlServer(
             control_socket if control_socket is not None else config.paths.control_socket,
             DaemonControlApi(self),
@@ -258,6 +265,9 @@ class Daemon:
         self.control.halt()
         self.safe_stop.engage(f"forced exit on second signal {name}")
         os._exit(128 + signum)
+
+    def _publish_status(self, output: CoreOutput) -> None:
+        self.status_topic.publish(output, output.now_s)
 
     # ---- supervision hooks -------------------------------------------------------
     def _critical_service_faults(self) -> dict[str, str]:
