@@ -106,8 +106,17 @@ class SpeedRamp:
         return self._setpoint_mps
 
     def update(self, target_mps: float, now_s: float, *, controlled_stop: bool = False) -> float:
-        """The next set-point toward ``target_mps`` (non-finite target: 0, deny by default)."""
+        """The next set-point toward ``target_mps`` (non-finite target: 0, deny by default).
+
+        A non-finite ``now_s`` is a broken clock: the set-point may fall but not rise, and
+        the last good time is kept so the next good cycle ramps from it.
+        """
         p = self.params
+        if not math.isfinite(now_s):
+            self._setpoint_mps = (
+                min(self._setpoint_mps, max(target_mps, 0.0)) if math.isfinite(target_mps) else 0.0
+            )
+            return self._setpoint_mps
         dt_s = 0.0 if self._last_s is None else min(max(now_s - self._last_s, 0.0), p.max_step_dt_s)
         self._last_s = now_s
         target = min(max(target_mps, 0.0), p.max_speed_mps) if math.isfinite(target_mps) else 0.0

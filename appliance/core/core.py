@@ -292,6 +292,8 @@ class ControlCore:
                 self._note("engage_refused", reasons=list(action.reasons))
             if isinstance(action, RefuseEngagement):
                 self.last_refusal = action.reasons
+        if after.last_refusal and after.last_refusal != before.last_refusal:
+            self.last_refusal = after.last_refusal  # e.g. an override press refused in ERROR
         return actions
 
     def _note(self, event: str, **fields: Any) -> None:
@@ -393,6 +395,11 @@ class ControlCore:
             active["pc104_link_errors"] = (
                 f"PC104 link: CRC/counter errors exhausted the budget of {self.link_budget.limit}"
             )
+        steering_fresh = {"board.steering", "steering.pot"} <= fresh
+        if self.calibration is not None and steering_fresh and self.override.steering_unknown:
+            # Fresh telemetry, but the angle cannot be known (pot outside its calibrated
+            # range, a non-finite reading): a steering nobody can see is not steered.
+            active["steering_unknown"] = "steering angle unknown (pot outside its calibrated range)"
         if self.tracking.update(
             self._last_steer_rad, m.steer_tyre_rad, operator.steering_override, now_s
         ):

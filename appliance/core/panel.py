@@ -22,7 +22,7 @@ MAX_PRESSES_PER_FRAME = 3
 
 @dataclass(frozen=True)
 class PanelEvents:
-    presses: tuple[Buttons, ...]  # in BUTTON_ORDER, each at most once per update
+    presses: tuple[Buttons, ...]  # in BUTTON_ORDER, a button once per press counted
     down: Buttons
     implausible: tuple[Buttons, ...] = ()  # counters that jumped too far: ignored
 
@@ -61,5 +61,5 @@ class PanelDecoder:
             if delta > MAX_PRESSES_PER_FRAME:
                 implausible.append(button)
             else:
-                presses.append(button)
+                presses.extend([button] * delta)  # two quick - presses are two steps
         return PanelEvents(tuple(presses), telemetry.buttons_down, tuple(implausible))
