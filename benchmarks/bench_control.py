@@ -9,19 +9,20 @@ rates (``rates.control_hz`` and ``rates.pc104_command_hz`` together). Figures:
 2. a stale input to the safe command on the wire: the steering twin stops its telemetry;
    from the moment the input is stale (its last frame's receive stamp plus
    ``staleness.steering_pot_max_age_s``) to the brake twin receiving
-   ``BrakeCommand(enable=True)`` and the PC104 twin receiving STOP. Target p99: one
+   ``BrakeCommand(enable=True)`` and a STOP HL_MotionCommand on the bus. Target p99: one
    cycle + 5 ms;
 3. the operator taking over: from the daemon receiving the telemetry frame with the
-   panel's new MANUAL_OVERRIDE count to the steering twin receiving RELEASE and the
-   PC104 twin receiving STOP; from the daemon receiving the brake frame of a tap in
-   speed hold to the PC104 twin receiving a set-point that left the hold. Target p99:
+   panel's new MANUAL_OVERRIDE count to the steering twin receiving RELEASE and a STOP
+   on the bus; from the daemon receiving the brake frame of a tap in speed hold to a
+   set-point that left the hold on the bus. Target p99:
    one cycle.
 
 Where the twins receive: the boards read their pty the moment bytes arrive (an
 ``add_reader`` on the twin's end runs its ``step``), not at their own 10 ms step, so the
-figure is the daemon's; the PC104 twin reads the bus on its own 5 ms tick, which is in the
-figure. "core" is the control cycle whose output first shows the change (its wake-up
-time): the rest is the driver (the PC104 client sends on its own period) and the twin.
+figure is the daemon's; HL_MotionCommand frames are stamped by a second node on the bus
+(a thread blocked in ``recv``), not by the PC104 twin, which reads on its own 5 ms tick.
+"core" is the control cycle whose output first shows the change (its wake-up time): the
+rest is the driver and the link.
 Figures are printed, never asserted.
 """
 
@@ -35,11 +36,14 @@ import platform
 import random
 import sys
 import tempfile
+import threading
 import time
 import uuid
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
+
+import can
 
 from appliance.config import VehicleConfig, load_config
 from appliance.control_loop import StepTimes
@@ -51,8 +55,8 @@ from benchmarks.bench_pc104 import LoadGenerator
 from benchmarks.stats import summarize
 from drivers.actuators.messages import BUTTON_ORDER, Buttons, SteeringMode
 from drivers.actuators.twin import BoardTwin
-from drivers.pc104.messages import MotionPattern
-from drivers.pc104.twin import Pc104Twin
+from drivers.pc104 import protocol
+from drivers.pc104.messages import MotionCommand, MotionPattern
 
 RATES_HZ = (50.0, 100.0)
 TRIALS = 30
@@ -93,15 +97,35 @@ def read_on_arrival(twin: BoardTwin[Any], log: CommandLog) -> Callable[[], None]
     return undo
 
 
-def watch_pc104(twin: Pc104Twin, log: CommandLog) -> None:
-    core = twin.core
-    on_frame = core.on_frame
+class WireListener:
+    """A second node on the bus: logs each HL_MotionCommand the moment it is on the wire.
 
-    def on_frame_logged(arbitration_id: int, data: bytes, now_s: float) -> None:
-        on_frame(arbitration_id, data, now_s)
-        log.note(time.monotonic(), core.command)
+    The PC104 twin reads the bus on its own 5 ms tick, which would be in every figure; a
+    listener thread blocked in ``recv`` stamps the frame as it arrives instead.
+    """
 
-    core.on_frame = on_frame_logged  # type: ignore[method-assign]
+    def __init__(self, channel: str, log: CommandLog) -> None:
+        self._bus = can.Bus(interface="virtual", channel=channel, receive_own_messages=False)
+        self._log = log
+        self._stop = threading.Event()
+        self._command_id = protocol.spec_for(MotionCommand).frame_id
+        self._thread = threading.Thread(target=self._run, name="wire-listener", daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            message = self._bus.recv(0.05)
+            if message is None or message.arbitration_id != self._command_id:
+                continue
+            now_s = time.monotonic()
+            with contextlib.suppress(protocol.Pc104ProtocolError):
+                frame = protocol.decode(message.arbitration_id, bytes(message.data), now_s)
+                self._log.note(now_s, frame.message)
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=1.0)
+        self._bus.shutdown()
 
 
 class FirstSample:
@@ -286,7 +310,7 @@ class Bench:
             stale_s,
             brake_log.first_after(t0_s, _is_enable),
         )
-        out.add("stale -> PC104 twin has STOP", stale_s, pc104_log.first_after(t0_s, _is_stop))
+        out.add("stale -> STOP on the bus", stale_s, pc104_log.first_after(t0_s, _is_stop))
 
     async def operator(self, trials: int) -> tuple[Latencies, Latencies]:
         override, tap = Latencies(), Latencies()
@@ -342,7 +366,7 @@ class Bench:
             out.spoiled += 1
         else:
             out.add("brake frame -> core cycle leaves the hold", pressed_s, self.first_output.now_s)
-            out.add("brake frame -> PC104 twin set-point left the hold", pressed_s, left_hold())
+            out.add("brake frame -> set-point left the hold on the bus", pressed_s, left_hold())
 
     async def override_trial(self, out: Latencies) -> None:
         steering_log, pc104_log = self.logs["steering"], self.logs["pc104"]
@@ -369,7 +393,7 @@ class Bench:
                 steering_log.first_after(t0_s, _is_release),
             )
             out.add(
-                "panel frame -> PC104 twin has STOP",
+                "panel frame -> STOP on the bus",
                 pressed_s,
                 pc104_log.first_after(t0_s, _is_stop),
             )
@@ -411,7 +435,8 @@ async def bench_rate(rate_hz: float, seconds: float, trials: int) -> list[str]:
             generator = LoadGenerator(channel, with_status=False)  # filler ids only
             generator.start()
             undo.append(lambda: _stop(generator))
-            watch_pc104(bench.pc104_twin, bench.logs["pc104"])
+            wire = WireListener(channel, bench.logs["pc104"])
+            undo.append(wire.close)
             lines = [f"### control at {rate_hz:g} Hz (period {period_ms:.1f} ms)"]
             lines += await bench.jitter(seconds)
             sent0_s, sent0 = time.monotonic(), generator.sent
@@ -445,8 +470,8 @@ def machine_header() -> list[str]:
         f"os.cpu_count() = {os.cpu_count()}, load average (1, 5, 15 min) = {load}",
         "note: on a shared 2-core VM these figures are noisy (other work, GIL contention "
         "with the load generator thread); compare runs on one machine, never assert them",
-        "paths to the PC104 include the client's own send period (up to one cycle) and the "
-        "PC104 twin's 5 ms receive tick; the boards' twins read on arrival",
+        "paths to the PC104 end when the frame is on the bus (a listener node stamps it); "
+        "the boards' twins read their pty on arrival",
     ]
 
 
