@@ -124,15 +124,20 @@ class Pc104Client:
         previous = self._command
         self._command = command
         self._command_s = self._clock() if now_s is None else now_s
-        # A change of pattern (STOP above all) goes on the wire now, not at the next tick
-        # of the periodic sender: a fault or an override must reach the PC104 within the
-        # control cycle. Other changes wait for the tick unless half a period has passed,
-        # which phase-locks the frames to the control loop without flooding the bus.
+        # A change of pattern (STOP above all) or a lower speed goes on the wire now, not at
+        # the next tick of the periodic sender: a fault, an override or a brake tap must
+        # reach the PC104 within the control cycle. Other changes wait for the tick unless
+        # half a period has passed, which phase-locks the frames to the control loop
+        # without flooding the bus.
         link = self._link
         if link is None:
             return
         now = self._clock()
-        urgent = previous is None or previous.pattern is not command.pattern
+        urgent = (
+            previous is None
+            or previous.pattern is not command.pattern
+            or abs(command.speed_mps) < abs(previous.speed_mps)
+        )
         if urgent or now - self._last_command_sent_s >= self.params.command_period_s / 2:
             self._send_command_frame(link, now)
             self._next_command_s = now + self.params.command_period_s
