@@ -153,13 +153,18 @@ class Pc104Client:
             self._next_heartbeat_s = now + self._heartbeat_period_s
 
     def health(self, now_s: float | None = None) -> LinkHealth:
+        live = now_s is None
         now_s = self._clock() if now_s is None else now_s
         status_monitor = self.monitors[self._status_id]
         monitors = self.monitors.values()
         status = self._status
+        # A caller may look between the stale deadline and the loop's wake-up for it:
+        # then the report is consistent (stale, and since when) and the episode logged now.
+        # A look at another time (``now_s`` given) only reads.
+        stale = self._update_stale(now_s) if live else status_monitor.stale(now_s)
         return LinkHealth(
             connected=self._link is not None,
-            stale=status_monitor.stale(now_s),
+            stale=stale,
             status_age_s=status_monitor.age_s(now_s),
             frames_in_per_s=self._in_rate.rate_per_s,
             frames_out_per_s=self._out_rate.rate_per_s,
@@ -347,7 +352,8 @@ class Pc104Client:
             self._ep_bus.occur(now_s, condition=condition.name)
 
     # ---- bookkeeping ------------------------------------------------------------------
-    def _watch(self, link: BusLink, now_s: float) -> None:
+    def _update_stale(self, now_s: float) -> bool:
+        """Note (and log once) when the status went stale; whoever looks first notices."""
         stale = self.monitors[self._status_id].stale(now_s)
         if stale and self._stale_since_s is None:
             self._stale_since_s = now_s
@@ -356,6 +362,10 @@ class Pc104Client:
         elif not stale and self._stale_since_s is not None:
             self._stale_since_s = None
             self._ep_stale.clear(now_s)
+        return stale
+
+    def _watch(self, link: BusLink, now_s: float) -> None:
+        self._update_stale(now_s)
         self._in_rate.update(now_s, self._received)
         self._out_rate.update(now_s, self._sent)
         if now_s >= self._next_poll_s:
