@@ -32,7 +32,7 @@ from appliance.core.inputs import ControlInputs, LinkCounts
 from appliance.logs import get_logger
 from appliance.supervisor import ServiceContext
 from appliance.timing import FixedRateTicker
-from appliance.topics import TopicRegistry
+from appliance.topics import Sample, TopicRegistry
 
 log = get_logger("control")
 
@@ -82,6 +82,42 @@ class TopicInputs:
             scans={side: self._latest(f"scan.{side}") for side in ("left", "right")},
             service_faults=self.service_faults() if self.service_faults is not None else {},
         )
+
+
+class OperatorWatch:
+    """Wakes the control loop at once when telemetry shows the operator acting.
+
+    The loop runs on a fixed schedule, so a button pressed just after a cycle would wait
+    up to a whole period; the operator's override must win within one cycle, so a panel
+    frame with a new press or a changed button (the e-stop mushroom among them) and a
+    pedal newly pressed past our actuator run an extra cycle now. The schedule is kept.
+    Only changes wake it, so a held button or a resting foot costs nothing.
+    """
+
+    def __init__(self, wake: Callable[[], None], pedal_margin_pct: float) -> None:
+        self._wake = wake
+        self._margin_pct = pedal_margin_pct
+        self._panel: tuple[object, ...] | None = None
+        self._pressed: dict[str, bool] = {}
+
+    def on_panel(self, sample: Sample[Any]) -> None:
+        value = sample.value
+        seen = (tuple(value.press_counts), value.buttons_down)
+        if self._panel is not None and seen != self._panel:
+            self._wake()
+        self._panel = seen
+
+    def on_pedal(self, name: str) -> Callable[[Sample[Any]], None]:
+        def listener(sample: Sample[Any]) -> None:
+            pedal = sample.value.pedal_position_pct
+            pressed = pedal is not None and (
+                pedal > sample.value.actuator_position_pct + self._margin_pct
+            )
+            if pressed and not self._pressed.get(name, False):
+                self._wake()
+            self._pressed[name] = pressed
+
+        return listener
 
 
 class StepTimes:
@@ -166,4 +202,5 @@ class ControlLoop:
             "jitter_p99_ms": round(report.jitter_p99_ms, 3),
             "jitter_max_ms": round(report.jitter_max_ms, 3),
             "step_p99_ms": round(self.step_times.p99_ms(), 3),
+            "early_wakes": self.ticker.early_wakes,
         }

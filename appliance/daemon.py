@@ -23,7 +23,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from appliance.config import VehicleConfig
-from appliance.control_loop import ControlLoop, TopicInputs
+from appliance.control_loop import ControlLoop, OperatorWatch, TopicInputs
 from appliance.control_socket import ControlServer
 from appliance.core.autopilot import AutopilotSource
 from appliance.core.core import ControlCore
@@ -114,6 +114,12 @@ class Daemon:
             clock=clock,
         )
         self.control.sinks.append(VehicleCommandSink(self.io, self.control.lease_s))
+        watch = OperatorWatch(
+            self.control.ticker.wake_early, config.safety.pedal_override_margin_pct
+        )
+        self.io.topics.get("board.panel").subscribe(watch.on_panel)
+        for pedal in ("brake", "throttle"):
+            self.io.topics.get(f"board.{pedal}").subscribe(watch.on_pedal(pedal))
         # The status topic: every cycle's output (mode, commands, notes), for recorders and
         # any in-process consumer; `dbw status` is its view from outside the process.
         self.status_topic: Topic[CoreOutput] = Topic("control.status")

@@ -71,10 +71,24 @@ class FixedRateTicker:
         self._clock = clock
         self.stats = RateStats()
         self._next_s: float | None = None
+        self._early: asyncio.Future[bool] | None = None
+        self.early_wakes = 0
 
     def reset(self) -> None:
         self._next_s = None
+        self._early = None
+        self.early_wakes = 0
         self.stats.reset()
+
+    def wake_early(self) -> None:
+        """Make the pending ``tick()`` return now, off schedule (an operator action).
+
+        The schedule is not moved and the early wake-up is not counted as jitter: the next
+        ``tick()`` waits for the same scheduled deadline as before.
+        """
+        early = self._early
+        if early is not None and not early.done():
+            early.set_result(True)
 
     async def tick(self) -> float:
         now_s = self._clock()
@@ -82,7 +96,18 @@ class FixedRateTicker:
             self._next_s = now_s
         delay_s = self._next_s - now_s
         if delay_s > 0:
-            await asyncio.sleep(delay_s)
+            loop = asyncio.get_running_loop()
+            early: asyncio.Future[bool] = loop.create_future()
+            self._early = early
+            timer = loop.call_later(delay_s, _resolve, early)
+            try:
+                woken_early = await early
+            finally:
+                timer.cancel()
+                self._early = None
+            if woken_early:  # an extra cycle: the schedule and the statistics are kept
+                self.early_wakes += 1
+                return self._clock()
         else:
             await asyncio.sleep(0)  # stay cancellable and fair even when late
         actual_s = self._clock()
@@ -91,3 +116,8 @@ class FixedRateTicker:
         self.stats.update(scheduled_s, actual_s, missed)
         self._next_s = scheduled_s + (missed + 1) * self.period_s
         return actual_s
+
+
+def _resolve(future: asyncio.Future[bool]) -> None:
+    if not future.done():
+        future.set_result(False)

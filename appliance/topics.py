@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import asyncio
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, Generic, TypeVar
 
@@ -33,6 +34,11 @@ class Topic(Generic[T]):
         self._latest: Sample[T] | None = None
         self._seq = 0
         self._changed: asyncio.Event | None = None
+        self._listeners: list[Callable[[Sample[T]], None]] = []
+
+    def subscribe(self, listener: Callable[[Sample[T]], None]) -> None:
+        """Call ``listener`` with every sample as it is published (it must not block)."""
+        self._listeners.append(listener)
 
     def reset(self) -> None:
         self._latest = None
@@ -44,6 +50,8 @@ class Topic(Generic[T]):
         if self._changed is not None:
             self._changed.set()
             self._changed = None
+        for listener in self._listeners:
+            listener(sample)
         return sample
 
     def latest(self) -> Sample[T] | None:
