@@ -264,6 +264,8 @@ class ControlCore:
         if self.state.mode is before.mode and self.state.set_speed_mps == before.set_speed_mps:
             reason = "; ".join(self.state.last_refusal) or f"no effect in {self.state.mode}"
             return False, reason
+        if self.state.mode is before.mode:
+            return True, f"set speed {self.state.set_speed_mps or 0.0:.2f} m/s"
         return True, f"{before.mode} -> {self.state.mode}"
 
     def status(self, now_s: float) -> dict[str, Any]:
