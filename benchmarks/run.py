@@ -9,6 +9,7 @@ import time
 BENCHMARKS = [
     "benchmarks.bench_supervisor",
     "benchmarks.bench_sim_raycast",
+    "benchmarks.bench_sim_twins",
     "benchmarks.bench_lms111_decode",
     "benchmarks.bench_actuators",
     "benchmarks.bench_lms111_stream",
