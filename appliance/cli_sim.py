@@ -9,11 +9,13 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import os
 import signal
 import sys
 from pathlib import Path
 
 import click
+import structlog
 
 from appliance.config import ConfigError, VehicleConfig, load_config
 from appliance.config.loader import to_toml
@@ -62,6 +64,9 @@ async def run_simulator(
     pty_directory: str | None,
     write_config: Path | None,
     duration_s: float | None,
+    *,
+    ready_fd: int | None = None,
+    exit_on_stdin_eof: bool = False,
 ) -> int:
     policy = RestartPolicy()
     simulator = build_simulator(config, policy, can=can, pty_directory=pty_directory)
@@ -80,14 +85,15 @@ async def run_simulator(
             "lms111_right": f"{right.host}:{right.port}",
             "pc104": f"{can.interface.value}:{can.channel}"
             if can
-            else "not simulated (no --can-channel)",
+            else "not simulated (no --can-channel or --can-slcan)",
             **{
                 f"{board}_serial": simulator.board_twins.port_path(f"sim://{board}")
                 for board in BOARDS
             },
         }
-        for name, where in endpoints.items():
-            click.echo(f"{name:>16}: {where}")
+        if ready_fd is None:  # a daemon that started us reads no endpoint table
+            for name, where in endpoints.items():
+                click.echo(f"{name:>16}: {where}")
         if write_config is not None:
             # The simulated vehicle's calibration beside the vehicle file: the daemon in
             # the other process has simulation disabled, so it cannot use the built-in one.
@@ -102,6 +108,10 @@ async def run_simulator(
             click.echo(f"{'daemon config':>16}: {write_config}  (dbw run --config {write_config})")
         sys.stdout.flush()
         log.info("simulator_ready", endpoints=endpoints)
+        if ready_fd is not None:
+            await asyncio.to_thread(_tell_ready, ready_fd)
+        if exit_on_stdin_eof:
+            _stop_on_stdin_eof(loop, stop)
         with contextlib.suppress(TimeoutError):
             await asyncio.wait_for(stop.wait(), duration_s)
         return 0
@@ -112,23 +122,68 @@ async def run_simulator(
         simulator.close()
 
 
+def _tell_ready(fd: int) -> None:
+    try:
+        os.write(fd, b"ready\n")
+    finally:
+        os.close(fd)
+
+
+def _stop_on_stdin_eof(loop: asyncio.AbstractEventLoop, stop: asyncio.Event) -> None:
+    """Stop when stdin ends: the daemon that started us is gone, however it went."""
+    fd = sys.stdin.fileno()
+
+    def on_readable() -> None:
+        try:
+            data = os.read(fd, 4096)
+        except OSError:
+            data = b""
+        if not data:
+            loop.remove_reader(fd)
+            log.info("simulator_parent_gone")
+            stop.set()
+
+    loop.add_reader(fd, on_readable)
+
+
 @click.command()
 @click.option("--config", "config_name", metavar="FILE|PROFILE", default="sim", show_default=True)
 @click.option(
     "--can-channel",
     default=None,
-    help="SocketCAN interface for the PC104 twin (e.g. vcan0). Without it the PC104 is not "
-    "simulated: python-can's virtual bus does not cross processes.",
+    help="SocketCAN interface for the PC104 twin (e.g. vcan0).",
+)
+@click.option(
+    "--can-slcan",
+    "can_slcan",
+    metavar="PATH",
+    default=None,
+    help="Put the PC104 twin behind a simulated SLCAN USB-CAN adapter whose tty appears at "
+    "PATH (needs no kernel CAN); the daemon uses devices.can.interface = 'slcan', channel PATH. "
+    "Without this or --can-channel the PC104 is not simulated.",
 )
 @click.option("--pty-dir", type=click.Path(file_okay=False), default=None)
 @click.option("--write-config", type=click.Path(dir_okay=False, path_type=Path), default=None)
 @click.option("--duration-s", type=click.FloatRange(min=0.0, min_open=True), default=None)
+@click.option(
+    "--ready-fd",
+    type=click.IntRange(min=0),
+    default=None,
+    help="Write 'ready' to this inherited file descriptor once every twin is up (for the "
+    "daemon that starts the simulated vehicle); the endpoint table is then not printed.",
+)
+@click.option(
+    "--exit-on-stdin-eof", is_flag=True, help="Stop when standard input ends (the parent died)."
+)
 def sim(
     config_name: str,
     can_channel: str | None,
+    can_slcan: str | None,
     pty_dir: str | None,
     write_config: Path | None,
     duration_s: float | None,
+    ready_fd: int | None,
+    exit_on_stdin_eof: bool,
 ) -> None:
     """Run the simulated vehicle and print its endpoints (and a config for `dbw run`)."""
     try:
@@ -136,7 +191,25 @@ def sim(
     except ConfigError as exc:
         click.echo(exc.render(), err=True)
         sys.exit(2)
-    can = (
-        CanEndpoint(interface=CanInterface.SOCKETCAN, channel=can_channel) if can_channel else None
+    if can_channel and can_slcan:
+        click.echo("give --can-channel or --can-slcan, not both", err=True)
+        sys.exit(2)
+    can: CanEndpoint | None = None
+    if can_channel:
+        can = CanEndpoint(interface=CanInterface.SOCKETCAN, channel=can_channel)
+    elif can_slcan:
+        can = CanEndpoint(interface=CanInterface.SLCAN, channel=can_slcan)
+    structlog.contextvars.bind_contextvars(process="sim")
+    sys.exit(
+        asyncio.run(
+            run_simulator(
+                config,
+                can,
+                pty_dir,
+                write_config,
+                duration_s,
+                ready_fd=ready_fd,
+                exit_on_stdin_eof=exit_on_stdin_eof,
+            )
+        )
     )
-    sys.exit(asyncio.run(run_simulator(config, can, pty_dir, write_config, duration_s)))

@@ -18,6 +18,8 @@ import structlog
 from structlog.typing import EventDict, WrappedLogger
 
 LEVELS = ("debug", "info", "warning", "error", "critical")
+# What configure_logging chose last, so a child process can log the same way.
+_settings: tuple[str, bool] = ("info", False)
 
 
 def _add_task_and_monotonic(_: WrappedLogger, __: str, event_dict: EventDict) -> EventDict:
@@ -44,6 +46,8 @@ def configure_logging(
     out = stream if stream is not None else sys.stdout
     if json is None:
         json = not out.isatty()
+    global _settings
+    _settings = (level, json)
     renderer: Any = (
         structlog.processors.JSONRenderer(sort_keys=False)
         if json
@@ -70,3 +74,8 @@ def configure_logging(
 def get_logger(name: str) -> structlog.typing.FilteringBoundLogger:
     logger: structlog.typing.FilteringBoundLogger = structlog.get_logger(component=name)
     return logger
+
+
+def current_log_settings() -> tuple[str, bool]:
+    """``(level, json)`` as last configured (a child process is told the same)."""
+    return _settings

@@ -16,8 +16,10 @@ import time
 from collections.abc import Awaitable, Callable
 from dataclasses import dataclass, field
 
+import can as can_lib
+
 from appliance.config import VehicleConfig
-from appliance.config.models import CanEndpoint, ColaDialect
+from appliance.config.models import CanEndpoint, CanInterface, ColaDialect
 from appliance.sim.site import Pose2D
 from appliance.sim.site_file import load_site
 from appliance.sim.vehicle import VehicleParams, VehicleState
@@ -27,7 +29,8 @@ from drivers.actuators.twin_set import ActuatorTwins
 from drivers.lms111 import Dialect
 from drivers.lms111.mounted import mount_pose
 from drivers.lms111.twin import Lms111Twin
-from drivers.pc104.link import bus_factory
+from drivers.pc104.link import BusFactory, bus_factory
+from drivers.pc104.slcan import SlcanAdapterBus
 from drivers.pc104.twin import Pc104Twin
 from safety.watchdog import RestartPolicy
 
@@ -82,7 +85,17 @@ def build_simulator(
     simulator.services.append(twin_service("sim.world", run_world, policy))
 
     if can is not None:
-        pc104 = Pc104Twin(bus_factory(can), world, step_world=False)
+        if can.interface is CanInterface.SLCAN:
+            # The twin plays the USB-CAN adapter too: the daemon opens ``can.channel``.
+            adapter_path = can.channel
+
+            def open_adapter() -> can_lib.BusABC:
+                return SlcanAdapterBus(adapter_path)
+
+            open_bus: BusFactory = open_adapter
+        else:
+            open_bus = bus_factory(can)
+        pc104 = Pc104Twin(open_bus, world, step_world=False)
         simulator.pc104_twin = pc104
 
         async def run_pc104(beat: Callable[[], None]) -> None:

@@ -1,10 +1,11 @@
 """Vehicle I/O: the drivers a profile asks for, and the simulated vehicle behind them.
 
 This is the one place that turns the config's ``devices`` into supervised services,
-topics and safe-stop targets. With ``simulation.enabled`` it also builds the simulated
-world and the twins, in this process: the clients still talk to them over the same
-transports they use on the vehicle (TCP, a CAN bus, real ptys), so nothing downstream can
-tell a twin from the hardware.
+topics and safe-stop targets. With ``simulation.enabled`` it also starts the simulated
+world and the twins: by default in a child process (``appliance.sim_process``), with
+``simulation.placement = "inline"`` in this one. Either way the clients talk to them over
+the transports they use on the vehicle (TCP, a CAN bus, real ptys), so nothing downstream
+can tell a twin from the hardware.
 
 Drivers keep beating while they reconnect: whether a *device* is there is a question of
 input staleness for the safety layer; the supervisor's heartbeat answers whether the
@@ -21,11 +22,12 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from appliance.config import VehicleConfig
-from appliance.config.models import CanInterface
+from appliance.config.models import CanInterface, SimPlacement
 from appliance.core.core import CoreOutput
 from appliance.core.inputs import LinkCounts
 from appliance.logs import get_logger
 from appliance.sim.vehicle import MotionPattern
+from appliance.sim_process import SimProcess
 from appliance.simulator import Simulator, build_simulator, lms111_dialect
 from appliance.supervisor import PermanentServiceError, ServiceSpec, beating_service
 from appliance.topics import Topic, TopicRegistry
@@ -57,7 +59,8 @@ class VehicleIO:
     topics: TopicRegistry = field(default_factory=TopicRegistry)
     services: list[ServiceSpec] = field(default_factory=list)
     safe_stop_targets: list[SafeStopTarget] = field(default_factory=list)
-    simulator: Simulator | None = None
+    simulator: Simulator | None = None  # an inline simulation (its twins, reachable)
+    sim_process: SimProcess | None = None  # the simulation in its own process
     boards: BoardClients | None = None
     pc104: Pc104Client | None = None
     scanners: dict[str, Lms111Client] = field(default_factory=dict)
@@ -114,20 +117,42 @@ def _service(
 
 def build_vehicle_io(config: VehicleConfig, policy: RestartPolicy) -> VehicleIO:
     io = VehicleIO()
-    if config.simulation.enabled:
+    resolve: Callable[[str], str] | None = None
+    if config.simulation.enabled and config.simulation.placement is SimPlacement.PROCESS:
+        sim_process = SimProcess(config)
+        io.sim_process = sim_process
+        io._closers.append(sim_process.close)
+        # Not critical: if the simulation dies, its inputs go stale and the safety layer
+        # holds the vehicle; the supervisor starts a new one.
+        io.services.append(
+            beating_service(
+                "sim",
+                sim_process.run,
+                policy,
+                DRIVER_HEARTBEAT_DEADLINE_S,
+                startup_grace_s=sim_process.ready_timeout_s,
+            )
+        )
+        # The drivers reach the child as hardware: its SLCAN adapter, its ptys.
+        devices = config.devices.model_copy(update={"can": sim_process.can_endpoint})
+        config = config.model_copy(update={"devices": devices})
+        resolve = sim_process.port_path
+    elif config.simulation.enabled:
         if config.devices.can.interface is not CanInterface.VIRTUAL:
             raise ValueError(
-                "the built-in simulated vehicle runs its PC104 twin in this process, on "
-                "python-can's virtual bus: set devices.can.interface = 'virtual' (or run "
-                "`dbw sim` and point a socketcan profile at it)"
+                "an inline simulated vehicle runs its PC104 twin in this process, on "
+                "python-can's virtual bus: set devices.can.interface = 'virtual' (or "
+                "simulation.placement = 'process')"
             )
         simulator = build_simulator(config, policy, can=config.devices.can)
         io.simulator = simulator
         io.services.extend(simulator.services)
         io._closers.append(simulator.close)
+        assert simulator.board_twins is not None
+        resolve = simulator.board_twins.port_path
     _build_pc104(config, io, policy)
     _build_scanners(config, io, policy)
-    _build_boards(config, io, policy)
+    _build_boards(config, io, policy, resolve)
     return io
 
 
@@ -202,9 +227,12 @@ def _permanent_on_config_error(
     return wrapped
 
 
-def _build_boards(config: VehicleConfig, io: VehicleIO, policy: RestartPolicy) -> None:
-    twins = io.simulator.board_twins if io.simulator is not None else None
-    resolve = twins.port_path if twins is not None else None
+def _build_boards(
+    config: VehicleConfig,
+    io: VehicleIO,
+    policy: RestartPolicy,
+    resolve: Callable[[str], str] | None,
+) -> None:
     boards = make_board_clients(config, resolve, beat_while_reconnecting=True)
     io.boards = boards
     for name, client in (

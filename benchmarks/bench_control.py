@@ -46,6 +46,7 @@ from typing import Any
 import can
 
 from appliance.config import VehicleConfig, load_config
+from appliance.config.models import SimPlacement
 from appliance.control_loop import StepTimes
 from appliance.core.core import CoreOutput
 from appliance.daemon import Daemon
@@ -416,11 +417,24 @@ def _is_release(command: Any) -> bool:
 
 
 def bench_config(rate_hz: float, channel: str) -> VehicleConfig:
+    """The sim profile with its twins inline: they are this benchmark's instruments (it
+    stalls a board, taps a pedal, stamps what each twin receives), so they share the
+    daemon's loop here, unlike `dbw run --config sim` (bench_soak measures that)."""
     config = load_config("sim")
     rates = config.rates.model_copy(update={"control_hz": rate_hz, "pc104_command_hz": rate_hz})
     can = config.devices.can.model_copy(update={"channel": channel})
     devices = config.devices.model_copy(update={"can": can})
-    return config.model_copy(update={"rates": rates, "devices": devices})
+    simulation = config.simulation.model_copy(update={"placement": SimPlacement.INLINE})
+    # Twins in the loop: the pot allowance the sim profile had while they were always there.
+    staleness = config.staleness.model_copy(update={"steering_pot_max_age_s": 0.08})
+    return config.model_copy(
+        update={
+            "rates": rates,
+            "devices": devices,
+            "simulation": simulation,
+            "staleness": staleness,
+        }
+    )
 
 
 async def bench_rate(rate_hz: float, seconds: float, trials: int) -> list[str]:

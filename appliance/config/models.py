@@ -136,7 +136,24 @@ class Lms111Endpoint(_Model):
 
 class CanInterface(StrEnum):
     SOCKETCAN = "socketcan"  # the vehicle, and vcan in HIL tests
-    VIRTUAL = "virtual"  # python-can's in-process bus: unit tests and the built-in sim
+    # A USB-CAN adapter speaking SLCAN on a serial port (channel: the tty); also how the
+    # built-in simulated vehicle's own process reaches the daemon.
+    SLCAN = "slcan"
+    VIRTUAL = "virtual"  # python-can's in-process bus: unit tests and an inline simulation
+
+
+# The bit rates an SLCAN adapter can be told (Lawicel S0..S8).
+SLCAN_BITRATES_BPS = (
+    10_000,
+    20_000,
+    50_000,
+    100_000,
+    125_000,
+    250_000,
+    500_000,
+    750_000,
+    1_000_000,
+)
 
 
 class CanEndpoint(_Model):
@@ -145,6 +162,15 @@ class CanEndpoint(_Model):
     interface: CanInterface = CanInterface.VIRTUAL
     channel: str = Field("dbw-sim", min_length=1)
     bitrate_bps: Annotated[int, Field(ge=10_000, le=1_000_000)] = 500_000
+
+    @model_validator(mode="after")
+    def _slcan_bitrate(self) -> Self:
+        if self.interface is CanInterface.SLCAN and self.bitrate_bps not in SLCAN_BITRATES_BPS:
+            raise ValueError(
+                f"an SLCAN adapter cannot run at {self.bitrate_bps} bit/s; choose one of "
+                + ", ".join(str(b) for b in SLCAN_BITRATES_BPS)
+            )
+        return self
 
 
 SIM_PORT_PREFIX = "sim://"
@@ -282,10 +308,21 @@ class Paths(_Model):
     control_socket: str = Field("var/dbw/control.sock", min_length=1)
 
 
+class SimPlacement(StrEnum):
+    # The world and every twin in a child process the daemon starts and stops, reached
+    # over TCP, ptys and SLCAN exactly as hardware: the daemon is measured as it runs on
+    # a vehicle, and the simulation has a CPU budget of its own.
+    PROCESS = "process"
+    # Everything in the daemon's process and event loop: for tests and benchmarks that
+    # reach into a twin (unplug a board, stall a telemetry stream, tap a pedal).
+    INLINE = "inline"
+
+
 class Simulation(_Model):
-    """The built-in simulated vehicle: its twins run in the daemon's own process."""
+    """The built-in simulated vehicle: the world and the twins of every device."""
 
     enabled: bool = True
+    placement: SimPlacement = SimPlacement.PROCESS
     world_step_hz: float = Field(100.0, ge=10.0, le=1000.0)
     # A built-in site (launcher, pallets) or a site TOML file the simulated scanners see.
     site: str = Field("launcher", min_length=1)

@@ -389,7 +389,7 @@ class ControlCore:
             active[f"service:{name}"] = f"critical service {name} {why}"
         steering_engaged = mode in AUTOMATIC_MODES
         active.update(board_faults(inputs, steering_engaged))
-        active.update(pc104_faults(inputs, fresh))
+        active.update(pc104_faults(inputs, fresh, actuating=steering_engaged))
         deltas = self.link_deltas.update(
             {"errors": inputs.pc104_link.errors, "good": inputs.pc104_link.good}
         )

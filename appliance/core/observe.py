@@ -63,7 +63,8 @@ def measure(
         throttle_actuator_pct=0.0 if throttle is None else throttle.actuator_position_pct,
         estop_reasons=estop_reasons(inputs),
         pc104_source=None if status is None else status.control_source,
-        pc104_ready=status is not None and status.ready,
+        # A PC104 that reports it does not hear our commands is not ready to follow them.
+        pc104_ready=status is not None and status.ready and not status.faults.command_timeout,
     )
 
 
@@ -108,9 +109,24 @@ def board_faults(inputs: ControlInputs, steering_engaged: bool) -> dict[str, str
     return faults
 
 
-def pc104_faults(inputs: ControlInputs, fresh: frozenset[str]) -> dict[str, str]:
+def pc104_faults(
+    inputs: ControlInputs, fresh: frozenset[str], actuating: bool = True
+) -> dict[str, str]:
+    """What the PC104 reports; its command timeout only while we are actuating.
+
+    A PC104 that has not heard from us says so (``command_timeout``) until our first
+    commands arrive: on every boot, before the link is up. That is the boards'
+    COMMAND_TIMEOUT, not a hardware fault; while we steer or hold speed it means our
+    commands are not getting through, and then it is one.
+    """
     status = inputs.pc104_status if "pc104.status" in fresh else None
     if status is None or not status.faults.any:
         return {}
-    names = [name for name in status.faults.__dataclass_fields__ if getattr(status.faults, name)]
+    names = [
+        name
+        for name in status.faults.__dataclass_fields__
+        if getattr(status.faults, name) and (actuating or name != "command_timeout")
+    ]
+    if not names:
+        return {}
     return {"pc104:faults": "PC104 reports " + ", ".join(names)}

@@ -1,7 +1,7 @@
 """One open CAN link on python-can's own plumbing, and the failure rules both ends share.
 
 A :class:`BusLink` is a ``can.Bus`` with a ``can.Notifier`` (on the running loop) feeding a
-``can.AsyncBufferedReader``: with socketcan the notifier watches the socket's file
+``can.AsyncBufferedReader``: with socketcan (and SLCAN) the notifier watches the file
 descriptor from the event loop, with ``virtual`` it runs python-can's receive thread.
 What python-can leaves to the application is deciding what a failure means:
 
@@ -31,6 +31,7 @@ from typing import Any
 import can
 
 from appliance.config.models import CanEndpoint, CanInterface
+from drivers.pc104.slcan import SlcanHostBus
 
 BusFactory = Callable[[], can.BusABC]
 # How often python-can's receive thread (virtual bus) checks whether it should stop.
@@ -51,12 +52,18 @@ def bus_factory(endpoint: CanEndpoint, receive_ids: Iterable[int] = ()) -> BusFa
     ids = sorted(set(receive_ids))
 
     def open_bus() -> can.BusABC:
+        filters: list[dict[str, Any]] = [
+            {"can_id": i, "can_mask": 0x7FF, "extended": False} for i in ids
+        ]
         if endpoint.interface is CanInterface.SOCKETCAN:
-            filters: list[dict[str, Any]] = [
-                {"can_id": i, "can_mask": 0x7FF, "extended": False} for i in ids
-            ]
             return can.Bus(
                 interface="socketcan", channel=endpoint.channel, can_filters=filters or None
+            )
+        if endpoint.interface is CanInterface.SLCAN:
+            # SLCAN carries no error frames, so python-can's software filter loses nothing.
+            # No adapter (yet) raises CanInitializationError: the owner retries with backoff.
+            return SlcanHostBus(
+                endpoint.channel, bitrate=endpoint.bitrate_bps, can_filters=filters or None
             )
         return can.Bus(interface="virtual", channel=endpoint.channel)
 

@@ -50,6 +50,7 @@ from drivers.lms111.twin import Lms111Twin
 from drivers.pc104 import protocol
 from drivers.pc104.messages import HighLevelState, HlHeartbeat, MotionPattern
 from drivers.pc104.twin import Pc104Twin
+from tests.runtime.inline import inline_sim
 from tools.fake_notify import FakeNotifySocket
 
 pytestmark = pytest.mark.slow
@@ -197,8 +198,8 @@ def free_port() -> int:
 
 
 def isolated_sim_config() -> VehicleConfig:
-    """The sim profile on its own CAN channel and free scanner ports (parallel runs)."""
-    config = load_config("sim")
+    """The sim profile inline, on its own CAN channel and free scanner ports (parallel runs)."""
+    config = inline_sim(load_config("sim"))
     devices = config.devices.model_copy(
         update={
             "can": config.devices.can.model_copy(

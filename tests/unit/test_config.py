@@ -59,7 +59,7 @@ def test_every_problem_is_reported_with_field_and_allowed_range() -> None:
     assert set(problems) == {"limits.max_speed_mps", "devices.can.interface", "rates.control_hz"}
     assert "got 35" in problems["limits.max_speed_mps"]
     assert "0.0 < value <= 20.0" in problems["limits.max_speed_mps"]
-    assert "'socketcan', 'virtual'" in problems["devices.can.interface"]
+    assert "'socketcan', 'slcan', 'virtual'" in problems["devices.can.interface"]
     assert "10.0 <= value <= 200.0" in problems["rates.control_hz"]
 
 
