@@ -80,7 +80,7 @@ async def test_daemon_engages_on_the_child_process_and_leaves_no_child_behind() 
         result = await asyncio.wait_for(run, 10.0)
     assert result.exit_code == 0, result.reason
     assert not alive(pid)
-    assert not Path(io.sim_process.directory).exists()
+    assert not await asyncio.to_thread(os.path.exists, io.sim_process.directory)
 
 
 async def test_a_dead_child_holds_the_vehicle_safe_and_the_supervisor_starts_a_new_one() -> None:

@@ -187,16 +187,18 @@ def test_a_full_line_drops_whole_frames_never_blocks_and_never_sends_half_a_line
     while not adapter.is_open and time.monotonic() < recv_until_open:
         adapter.recv(0.05)
     sent = dropped = 0
+    codes: set[int | None] = set()
     started = time.monotonic()
     for _ in range(20_000):  # far more than a pty holds: the adapter is not reading
         try:
             host.send(can.Message(arbitration_id=0x123, data=b"\x55" * 8, is_extended_id=False))
             sent += 1
         except can.CanOperationError as exc:
-            assert exc.error_code == errno.ENOBUFS
+            codes.add(exc.error_code)
             dropped += 1
     assert time.monotonic() - started < 5.0  # never blocked
     assert dropped > 0 and sent > 0
+    assert codes == {errno.ENOBUFS}  # a full buffer, as socketcan reports it: not a lost link
     # Everything the adapter now reads is whole frames: no line was cut short.
     received = 0
     while (message := adapter.recv(0.05)) is not None:
@@ -210,6 +212,5 @@ def test_an_unplugged_adapter_is_a_lost_link_on_the_host(pair) -> None:  # type:
     host, adapter = pair
     adapter.shutdown()
     with pytest.raises(can.CanOperationError) as raised:
-        for _ in range(20):
-            host.recv(0.05)
+        host.recv(0.5)  # the hang-up is readable at once: recv raises, it does not time out
     assert raised.value.error_code == errno.EIO
