@@ -69,6 +69,9 @@ def render_status(doc: dict[str, Any]) -> str:
     loop = _loop_line(doc)
     if loop:
         lines.append(loop)
+    event_loop = _event_loop_line(doc)
+    if event_loop:
+        lines.append(event_loop)
     lines += _name_table("services", doc.get("services"))
     return "\n".join(lines)
 
@@ -184,6 +187,29 @@ def _loop_line(doc: dict[str, Any]) -> str:
         if value is not None:
             parts.append(template.format(value))
     return "loop: " + ", ".join(parts) if parts else ""
+
+
+def _event_loop_line(doc: dict[str, Any]) -> str:
+    """Who held the event loop longest, in the last window and since start."""
+    lag = _dict(doc.get("event_loop"))
+    longest = _finite(lag.get("longest_callback_ms"))
+    if longest is None:
+        return ""
+    line = (
+        f"event loop: longest callback {longest:.1f} ms ({_text(lag.get('longest_callback_by'))})"
+    )
+    window = _finite(lag.get("window_s"))
+    slow = _finite(lag.get("slow_callbacks"))
+    busy = _finite(lag.get("busy_pct"))
+    if window is not None and slow is not None:
+        line += f", {slow:.0f} slow in the last {window:.1f} s"
+    if busy is not None:
+        line += f", {busy:.0f} % busy"
+    worst = _dict(lag.get("since_start"))
+    worst_ms = _finite(worst.get("longest_callback_ms"))
+    if worst_ms is not None:
+        line += f"; worst since start {worst_ms:.1f} ms ({_text(worst.get('longest_callback_by'))})"
+    return line
 
 
 def format_duration(seconds: float) -> str:

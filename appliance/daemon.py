@@ -29,6 +29,7 @@ from appliance.core.autopilot import AutopilotSource
 from appliance.core.core import ControlCore
 from appliance.core.output import CoreOutput
 from appliance.logs import get_logger
+from appliance.loop_monitor import LoopLag, LoopMonitor
 from appliance.modes import Mode
 from appliance.supervisor import ServiceContext, ServiceSpec, ServiceState, Supervisor
 from appliance.systemd_notify import SystemdNotifier
@@ -160,6 +161,9 @@ class Daemon:
             on_failure=self._on_service_failure,
         )
         self.watchdog_pings = 0
+        # Who holds the event loop: the longest callback of each heartbeat window, by name.
+        self.loop_monitor = LoopMonitor()
+        self.last_loop_lag: LoopLag | None = None
         self._stop_requested: asyncio.Event | None = None
         self._stop_reason = ""
         self._signals_seen = 0
@@ -173,6 +177,7 @@ class Daemon:
         # GIL with the event loop; by default a busy thread keeps it for up to 5 ms, a
         # quarter of a 50 Hz cycle. Let the loop thread back in after 1 ms.
         sys.setswitchinterval(SWITCH_INTERVAL_S)
+        self.loop_monitor.install(loop)
         self._stop_requested = asyncio.Event()
         if handle_signals:
             for signum in (signal.SIGTERM, signal.SIGINT):
@@ -197,6 +202,7 @@ class Daemon:
                 result = await self._shut_down(root, result)
             finally:
                 self.io.close()
+                self.loop_monitor.uninstall()
             if handle_signals:
                 for signum in (signal.SIGTERM, signal.SIGINT):
                     loop.remove_signal_handler(signum)
@@ -335,6 +341,15 @@ class Daemon:
             if now_s - last_report_s >= report_period_s:
                 last_report_s = now_s
                 jitter = self.control.ticker.stats.report()
+                lag = self.loop_monitor.take_window()
+                self.last_loop_lag = lag
+                if lag.longest_ms >= 1e3 / self.config.rates.control_hz:
+                    log.warning(
+                        "event_loop_stalled",
+                        longest_callback_ms=round(lag.longest_ms, 3),
+                        by=lag.longest_by,
+                        slow_callbacks=lag.slow_callbacks,
+                    )
                 log.info(
                     "heartbeats",
                     mode=str(self.core.state.mode),
@@ -346,6 +361,7 @@ class Daemon:
                     control_step_p99_ms=round(self.control.step_times.p99_ms(), 3),
                     input_ages_s=input_ages_s(self.io, now_s),
                     links=link_summary(self.io),
+                    event_loop=lag.as_dict(),
                     watchdog_pings=self.watchdog_pings,
                 )
             ctx.beat()
@@ -408,6 +424,8 @@ class Daemon:
             for name, age in sorted(ages.items())
         }
         doc["loop"] = self.control.loop_figures()
+        lag = self.last_loop_lag or self.loop_monitor.window()
+        doc["event_loop"] = {**lag.as_dict(), "since_start": self.loop_monitor.worst()}
         doc["services"] = self._service_summary()
         if self.core.calibration_problem:
             doc["calibration"] = self.core.calibration_problem

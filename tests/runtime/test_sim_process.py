@@ -72,6 +72,10 @@ async def test_daemon_engages_on_the_child_process_and_leaves_no_child_behind() 
         ages = io.topics.ages_s(asyncio.get_running_loop().time())
         for name in ("scan.left", "scan.right", "board.steering", "pc104.status"):
             assert ages[name] < 0.2, (name, ages)
+        # dbw status names who held the event loop longest.
+        event_loop = daemon.status_document()["event_loop"]
+        assert event_loop["callbacks"] > 0 and event_loop["longest_callback_by"]
+        assert event_loop["since_start"]["longest_callback_ms"] >= event_loop["longest_callback_ms"]
         ok, why = daemon.core.request("engage", daemon.clock())
         assert ok, why
         await wait_until(lambda: daemon.core.state.mode is Mode.ENGAGED, 5.0)
