@@ -195,9 +195,10 @@ def _event_loop_line(doc: dict[str, Any]) -> str:
     longest = _finite(lag.get("longest_callback_ms"))
     if longest is None:
         return ""
-    line = (
-        f"event loop: longest callback {longest:.1f} ms ({_text(lag.get('longest_callback_by'))})"
-    )
+    by = _text(lag.get("longest_callback_by"))
+    line = f"event loop: longest callback {longest:.1f} ms ({by}"
+    cpu = _finite(lag.get("longest_callback_cpu_ms"))
+    line += f", {cpu:.1f} ms on the CPU)" if cpu is not None else ")"
     window = _finite(lag.get("window_s"))
     slow = _finite(lag.get("slow_callbacks"))
     busy = _finite(lag.get("busy_pct"))

@@ -347,6 +347,7 @@ class Daemon:
                     log.warning(
                         "event_loop_stalled",
                         longest_callback_ms=round(lag.longest_ms, 3),
+                        cpu_ms=round(lag.longest_cpu_ms, 3),
                         by=lag.longest_by,
                         slow_callbacks=lag.slow_callbacks,
                     )

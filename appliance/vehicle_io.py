@@ -278,7 +278,8 @@ def link_summary(io: VehicleIO) -> dict[str, str]:
             b = client.health()
             links[f"board.{name}"] = (
                 f"{'up' if b.connected else 'DOWN'}{' STALE' if b.stale else ''} "
-                f"{b.frames_per_s:.0f} fps, crc={b.crc_errors} reconnects={b.reconnects}"
+                f"{b.frames_per_s:.0f} fps, crc={b.crc_errors} reconnects={b.reconnects} "
+                f"lease_expired={b.lease_expiries}"
             )
     return links
 

@@ -76,6 +76,8 @@ class LinkHealth:
     reconnects: int
     stale_episodes: int
     last_error: str
+    # Times a command's lease ran out before the next one came (a control loop that hung).
+    lease_expiries: int = 0
 
     @property
     def healthy(self) -> bool:
@@ -123,6 +125,7 @@ class ActuatorClient(Generic[TelemetryT]):
         self._command: Command | None = None
         self._lease_until_s: float | None = None
         self._lease_expired_logged = False
+        self.lease_expiries = 0
         self._connected_s = 0.0
         self._stale_reported = False
         self._window_start_s = clock()
@@ -193,6 +196,7 @@ class ActuatorClient(Generic[TelemetryT]):
             reconnects=self.reconnects,
             stale_episodes=self.stale_episodes,
             last_error=self.last_error,
+            lease_expiries=self.lease_expiries,
         )
 
     async def run(self, beat: Callable[[], None]) -> None:
@@ -318,6 +322,7 @@ class ActuatorClient(Generic[TelemetryT]):
         if self._lease_until_s is not None and self._clock() > self._lease_until_s:
             if not self._lease_expired_logged:
                 self._lease_expired_logged = True
+                self.lease_expiries += 1
                 self._logger().error("command_lease_expired", command=type(command).__name__)
             return
         data = self.codec.encode(command)

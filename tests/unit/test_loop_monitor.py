@@ -21,14 +21,15 @@ class FakeClock:
 
 
 async def test_the_longest_callback_is_named_by_its_task() -> None:
-    clock = FakeClock()
-    monitor = LoopMonitor(slow_s=0.005, clock=clock)
+    clock, cpu = FakeClock(), FakeClock()
+    monitor = LoopMonitor(slow_s=0.005, clock=clock, cpu_clock=cpu)
     monitor.install(asyncio.get_running_loop())
     try:
 
         async def hog() -> None:
             await asyncio.sleep(0)
-            clock.advance(0.030)  # this step "ran" 30 ms
+            clock.advance(0.030)  # this step "ran" 30 ms, 4 ms of it on the CPU
+            cpu.advance(0.004)
 
         async def quick() -> None:
             await asyncio.sleep(0)
@@ -42,6 +43,7 @@ async def test_the_longest_callback_is_named_by_its_task() -> None:
         monitor.uninstall()
     assert lag.longest_by == "task hog"
     assert abs(lag.longest_ms - 30.0) < 1e-6
+    assert abs(lag.longest_cpu_ms - 4.0) < 1e-6
     assert lag.slow_callbacks == 1
     assert lag.callbacks >= 4
     assert monitor.worst()["longest_callback_by"] == "task hog"
@@ -123,6 +125,7 @@ def test_dbw_status_shows_who_held_the_loop() -> None:
             "busy_pct": 31.0,
             "longest_callback_ms": 7.25,
             "longest_callback_by": "task lms111_left",
+            "longest_callback_cpu_ms": 6.9,
             "since_start": {
                 "longest_callback_ms": 41.0,
                 "longest_callback_by": "task status",
@@ -131,7 +134,7 @@ def test_dbw_status_shows_who_held_the_loop() -> None:
         },
     }
     line = next(x for x in render_status(doc).splitlines() if x.startswith("event loop:"))
-    assert "7.2 ms (task lms111_left)" in line or "7.3 ms (task lms111_left)" in line
+    assert "ms (task lms111_left, 6.9 ms on the CPU)" in line
     assert "2 slow in the last 1.0 s" in line
     assert "31 % busy" in line
     assert "worst since start 41.0 ms (task status)" in line
