@@ -5,9 +5,12 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 DEMO_SECONDS ?= 25
-# Debian packages the tests need: user-mode Linux (+kmod, can-utils, iproute2) for the vcan
-# HIL tests, systemd for `systemd-analyze verify`.
-TEST_DEBS := user-mode-linux kmod can-utils iproute2 systemd
+# Debian packages the tests need: for the vcan HIL tests user-mode Linux (+kmod, can-utils,
+# iproute2), patchelf (for Debian testing's UML where bookworm's panics: CPUs with AMX) and,
+# as the slow last resort, QEMU with busybox-static; systemd for `systemd-analyze verify`.
+# tools/vcan_run.py fetches what is not a bookworm package (testing's UML) into ~/.cache.
+HIL_DEBS := user-mode-linux kmod can-utils iproute2 patchelf qemu-system-x86 busybox-static
+TEST_DEBS := $(HIL_DEBS) systemd
 SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
 
 .PHONY: demo test venv debian-deps lint typecheck unit hil bench clean
@@ -49,9 +52,12 @@ typecheck: venv
 unit: venv
 	$(BIN)/pytest
 
-# Hardware-in-the-loop tests over real SocketCAN vcan (user-mode Linux when the host has no CAN).
+# Hardware-in-the-loop tests over real SocketCAN vcan: the host's, else user-mode Linux (the
+# system's, or Debian testing's where that one does not boot), else QEMU; chosen by probe.
+# HIL_WAY=native|uml-system|uml-testing|qemu forces one.
+HIL_WAY ?= auto
 hil: venv debian-deps
-	$(BIN)/python tools/vcan_run.py
+	$(BIN)/python tools/vcan_run.py --way $(HIL_WAY)
 
 bench: venv
 	$(BIN)/python -m benchmarks.run

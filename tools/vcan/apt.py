@@ -194,49 +194,59 @@ def _apt(args: list[str], work: Path, cwd: Path, timeout_s: float) -> None:
         raise WayFailed(f"apt-get {args[0]} failed: {tail[:200]}")
 
 
-def download(
-    packages: Sequence[str],
-    dest: Path,
-    work: Path,
-    suite: str | None = None,
-    mirror: Mirror | None = None,
-    timeout_s: float = 300.0,
-) -> list[Path]:
-    """``apt-get download`` ``packages`` into ``dest`` through private apt state in
-    ``work``: from ``suite`` of the system's Debian mirror, or (``suite=None``) from the
-    system's own sources. Returns the .deb files."""
-    (work / "lists" / "partial").mkdir(parents=True, exist_ok=True)
-    (work / "cache" / "archives" / "partial").mkdir(parents=True, exist_ok=True)
-    dest.mkdir(parents=True, exist_ok=True)
-    sources_list = None
-    if suite is not None:
-        mirror = mirror or debian_mirror(system_sources())
-        sources_list = work / "sources.list"
-        line = private_sources_line(mirror, suite, _signed_by_option(mirror, work))
-        sources_list.write_text(line)
-    opts = apt_options(work, sources_list)
-    _apt([*opts, "--error-on=any", "update"], work, work, timeout_s)
-    before = set(dest.glob("*.deb"))
-    _apt([*opts, "download", *packages], work, dest, timeout_s)
-    debs = sorted(set(dest.glob("*.deb")) - before)
-    if len(debs) < len(packages):
-        raise WayFailed(f"apt-get download gave {len(debs)} of {len(packages)} packages")
-    return debs
+class PrivateApt:
+    """apt-get with its own sources list (``suite`` of the system's Debian mirror) or the
+    system's own sources (``suite=None``), and its own lists and cache, all in ``work``."""
 
+    def __init__(
+        self,
+        work: Path,
+        suite: str | None = None,
+        mirror: Mirror | None = None,
+        timeout_s: float = 300.0,
+    ) -> None:
+        self.work = work
+        self.timeout_s = timeout_s
+        (work / "lists" / "partial").mkdir(parents=True, exist_ok=True)
+        (work / "cache" / "archives" / "partial").mkdir(parents=True, exist_ok=True)
+        sources_list = None
+        if suite is not None:
+            mirror = mirror or debian_mirror(system_sources())
+            sources_list = work / "sources.list"
+            line = private_sources_line(mirror, suite, _signed_by_option(mirror, work))
+            sources_list.write_text(line)
+        self.opts = apt_options(work, sources_list)
+        self.updated = False
 
-def package_depends(package: str, work: Path) -> list[str]:
-    """The Depends of ``package`` in the private lists ``download`` left in ``work``."""
-    opts = apt_options(work, work / "sources.list" if (work / "sources.list").exists() else None)
-    done = subprocess.run(
-        ["apt-cache", *opts, "show", "--no-all-versions", package],
-        capture_output=True,
-        text=True,
-        check=False,
-    )
-    for line in done.stdout.splitlines():
-        if line.startswith("Depends:"):
-            return [d.split()[0] for d in line[len("Depends:") :].split(",") if d.strip()]
-    raise WayFailed(f"apt-cache show {package}: no Depends ({done.stderr.strip()[:120]})")
+    def update(self) -> None:
+        if not self.updated:
+            _apt([*self.opts, "--error-on=any", "update"], self.work, self.work, self.timeout_s)
+            self.updated = True
+
+    def download(self, packages: Sequence[str], dest: Path) -> list[Path]:
+        """``apt-get download`` ``packages`` into ``dest``; returns the .deb files."""
+        self.update()
+        dest.mkdir(parents=True, exist_ok=True)
+        before = set(dest.glob("*.deb"))
+        _apt([*self.opts, "download", *packages], self.work, dest, self.timeout_s)
+        debs = sorted(set(dest.glob("*.deb")) - before)
+        if len(debs) < len(packages):
+            raise WayFailed(f"apt-get download gave {len(debs)} of {len(packages)} packages")
+        return debs
+
+    def depends(self, package: str) -> list[str]:
+        """The Depends of the candidate version of ``package``."""
+        self.update()
+        done = subprocess.run(
+            ["apt-cache", *self.opts, "show", "--no-all-versions", package],
+            capture_output=True,
+            text=True,
+            check=False,
+        )
+        for line in done.stdout.splitlines():
+            if line.startswith("Depends:"):
+                return [d.split()[0] for d in line[len("Depends:") :].split(",") if d.strip()]
+        raise WayFailed(f"apt-cache show {package}: no Depends ({done.stderr.strip()[:120]})")
 
 
 def unpack(deb: Path, root: Path) -> None:

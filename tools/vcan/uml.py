@@ -140,9 +140,8 @@ def _build(cache: Path) -> str:
     parent.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(prefix=f".{cache.name}-new-", dir=parent) as tmp:
         new = Path(tmp) / "uml"
-        debs = apt.download(
-            TESTING_PACKAGES, Path(tmp) / "debs", Path(tmp) / "apt", suite=TESTING_SUITE
-        )
+        private = apt.PrivateApt(Path(tmp) / "apt", suite=TESTING_SUITE)
+        debs = private.download(TESTING_PACKAGES, Path(tmp) / "debs")
         size_mb = sum(d.stat().st_size for d in debs) / 1e6
         root = new / "root"
         for deb in debs:

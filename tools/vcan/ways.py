@@ -13,7 +13,7 @@ from collections.abc import Callable, Mapping, Sequence
 from functools import partial
 from pathlib import Path
 
-from . import uml
+from . import qemu, uml
 from .common import EXIT_TIMEOUT, PROJECT_ROOT, Kernel, WayFailed, log
 
 WAYS = ("native", "uml-system", "uml-testing", "qemu")
@@ -106,14 +106,20 @@ def find_uml_testing(mem: str, cache: Path) -> Kernel:
     )
 
 
+def find_qemu(mem: str, cache: Path) -> Kernel:
+    found, version = qemu.qemu_kernel(cache / "qemu")
+    return Kernel(
+        "qemu",
+        f"QEMU {version} with Debian's kernel {found.version} (cached in {cache / 'qemu'})",
+        lambda cmd, t: qemu.run(found, cmd, t, mem),
+        qemu.SLOW_NOTE,
+    )
+
+
 def finders(mem: str, cache: Path) -> dict[str, Callable[[], Kernel]]:
     return {
         "native": find_native,
         "uml-system": partial(find_uml_system, mem),
         "uml-testing": partial(find_uml_testing, mem, cache),
-        "qemu": _qemu_unavailable,
+        "qemu": partial(find_qemu, mem, cache),
     }
-
-
-def _qemu_unavailable() -> Kernel:
-    raise WayFailed("not built")
