@@ -198,6 +198,7 @@ def sim(
     if can_channel:
         can = CanEndpoint(interface=CanInterface.SOCKETCAN, channel=can_channel)
     elif can_slcan:
+        os.makedirs(os.path.dirname(os.path.abspath(can_slcan)), exist_ok=True)
         can = CanEndpoint(interface=CanInterface.SLCAN, channel=can_slcan)
     structlog.contextvars.bind_contextvars(process="sim")
     sys.exit(
