@@ -27,6 +27,7 @@ scan configuration or the scan itself.
 
 from __future__ import annotations
 
+import copy
 import datetime as dt
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
@@ -169,6 +170,8 @@ class DeviceModel:
         self.output_start = self.config.start_angle_10000th_deg
         self.output_stop = self.config.stop_angle_10000th_deg
         self.power_on_count = 0
+        self._angles_key: tuple[int, int, int] | None = None
+        self._angles = (np.zeros(0, dtype=np.int64), np.zeros(0))
         self.boot(0.0)
 
     # ---- power and clocks ---------------------------------------------------------
@@ -226,13 +229,28 @@ class DeviceModel:
         self.scan_counter = (self.scan_counter + scans) & 0xFFFF
 
     def telegram(self, scan: Scan) -> Scan:
-        """The scan as the next telegram (each telegram sent advances the counter)."""
+        """The scan as the next telegram (each telegram sent advances the counter).
+
+        A shallow copy with the counter set: `dataclasses.replace` would run the frozen
+        22-field ``__init__`` again, which cost more than encoding a CoLa-B scan's data.
+        """
         self.telegram_counter = (self.telegram_counter + 1) & 0xFFFF
-        return replace(scan, telegram_counter=self.telegram_counter)
+        telegram = copy.copy(scan)
+        object.__setattr__(telegram, "telegram_counter", self.telegram_counter)
+        return telegram
+
+    def _beam_angles(self) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.float64]]:
+        """`beam_angles_10000th_deg` and in radians, kept until the configuration changes."""
+        key = (self.output_start, self.output_stop, self.config.angular_resolution_10000th_deg)
+        if self._angles_key != key:
+            angles = self.beam_angles_10000th_deg()
+            self._angles = (angles, np.radians(angles * 1e-4))
+            self._angles_key = key
+        return self._angles
 
     def _build(self, now_s: float) -> Scan:
-        angles = self.beam_angles_10000th_deg()
-        ranges_m, remission = self.ranges(now_s, np.radians(angles * 1e-4))[:2]
+        angles, angles_rad = self._beam_angles()
+        ranges_m, remission = self.ranges(now_s, angles_rad.copy())[:2]
         start, step = int(angles[0]), self.config.angular_resolution_10000th_deg
         dc = self.data_config
         channels16: list[Channel] = []
