@@ -11,13 +11,14 @@ the world, so each must be cheap. Figures (median, p99, min, max):
 * ``twin scan``: what one scan period costs a twin with one subscriber: ray casting the
   launcher site from a moving pose, the build and the encode (`Lms111Twin.device.measure`,
   then the telegram);
-* ``PC104 tick``: `Pc104TwinCore.tick` every 5 ms with a STRAIGHT 1 m/s command frame
-  decoded every 20 ms (`on_frame`), the world stepped alongside but not timed (in the daemon
-  the world is its own service); the frames due (five types, 20-100 ms) are encoded here.
-  Most ticks send nothing, so the figure per 20 ms cycle (four ticks) is printed too.
+* ``PC104 tick``: `Pc104TwinCore.tick` every 5 ms with a command frame decoded every 20 ms
+  (`on_frame`: STRAIGHT 1 m/s after a STOP, or STOP throughout), the world stepped alongside
+  but not timed (in the daemon the world is its own service); the frames due (five types,
+  20-100 ms) are encoded here. Most ticks send nothing, so the figure per 20 ms cycle (four
+  ticks) is printed too. Standing still, every report but the inclinometer's repeats.
 
 The last line adds it up for the daemon's simulated vehicle: two CoLa-A twins at 50 Hz /
-0.5° plus the PC104 twin, as a percentage of one core (from the medians; the PC104's
+0.5° plus the PC104 twin driving, as a percentage of one core (from the medians; the PC104's
 per 20 ms cycle).
 """
 
@@ -128,34 +129,37 @@ def bench_twin_scan(dialect: Dialect, hz: float, deg: float) -> tuple[str, float
     return line, float(np.median(samples))
 
 
-def bench_pc104_tick() -> tuple[str, float]:
+def bench_pc104_tick(driving: bool) -> tuple[str, float]:
+    """Ticks of a PC104 twin whose vehicle drives at 1 m/s (or stands: every report repeats)."""
     world = SimWorld(VehicleParams.from_config(load_config("sim")))
     core = Pc104TwinCore(world)
-    command = MotionCommand(MotionPattern.STRAIGHT, 1.0)
-    frames = [protocol.encode(command, counter) for counter in range(protocol.COUNTER_MODULO)]
+    stop = MotionCommand.stop()
+    command = MotionCommand(MotionPattern.STRAIGHT, 1.0) if driving else stop
     ticks_per_command = round(0.02 / PC104_TICK_S)
 
     def tick(i: int) -> None:
         t_s = i * PC104_TICK_S
-        if i % ticks_per_command == 0:
-            identifier, data = frames[(i // ticks_per_command) % len(frames)]
-            core.on_frame(identifier, data, t_s)
+        if i % ticks_per_command == 0:  # STOP first: the twin moves only after one
+            counter = (i // ticks_per_command) % protocol.COUNTER_MODULO
+            core.on_frame(*protocol.encode(command if i > 40 else stop, counter), t_s)
         core.tick(t_s)
 
     # World stepping is not part of the twin's tick: do it outside the timed region.
-    for i in range(WARMUP):
+    for i in range(4 * WARMUP):
         world.advance_to(i * PC104_TICK_S)
         tick(i)
     samples = []
-    for i in range(WARMUP, WARMUP + 4 * SAMPLES):
+    for i in range(4 * WARMUP, 4 * (WARMUP + SAMPLES)):
         world.advance_to(i * PC104_TICK_S)
         start = time.perf_counter_ns()
         tick(i)
         samples.append((time.perf_counter_ns() - start) / 1e6)
+    assert (world.state.speed_mps > 0.5) is driving
     per_cycle = np.add.reduceat(samples, np.arange(0, len(samples), ticks_per_command)).tolist()
+    what = "driving at 1 m/s" if driving else "standing still"
     lines = [
-        summarize("PC104 tick (5 ms; a command frame every 4th tick)", samples, "ms"),
-        summarize("PC104 20 ms cycle (4 ticks: 1 command in, 3-5 frames out)", per_cycle, "ms"),
+        summarize(f"PC104 tick, {what} (5 ms; a command every 4th tick)", samples, "ms"),
+        summarize(f"PC104 20 ms cycle, {what} (1 command in, 3-5 frames out)", per_cycle, "ms"),
     ]
     return "\n".join(lines), float(np.median(per_cycle)) / ticks_per_command
 
@@ -171,8 +175,9 @@ def main() -> None:
             line, median_ms = bench_twin_scan(dialect, hz, deg)
             twin_ms[(dialect, deg)] = median_ms
             print(line)
-    line, tick_ms = bench_pc104_tick()
+    line, tick_ms = bench_pc104_tick(driving=True)
     print(line)
+    print(bench_pc104_tick(driving=False)[0])
     scans_ms = 2 * 50 * twin_ms[(Dialect.COLA_A, 0.5)]
     ticks_ms = tick_ms / PC104_TICK_S
     print(
