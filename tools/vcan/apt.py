@@ -172,7 +172,9 @@ def apt_options(work: Path, sources_list: Path | None) -> list[str]:
     return [word for opt in opts for word in opt.split(" ", 1)]
 
 
-def _apt(args: list[str], work: Path, cwd: Path, timeout_s: float) -> None:
+def _apt(opts: list[str], command: list[str], work: Path, cwd: Path, timeout_s: float) -> None:
+    """Run ``apt-get -q OPTS COMMAND``, its output appended to ``work/apt.log``."""
+    args = [*opts, *command]
     try:
         done = subprocess.run(
             ["apt-get", "-q", *args],
@@ -185,13 +187,13 @@ def _apt(args: list[str], work: Path, cwd: Path, timeout_s: float) -> None:
     except FileNotFoundError as exc:
         raise WayFailed("apt-get not found") from exc
     except subprocess.TimeoutExpired as exc:
-        raise WayFailed(f"apt-get {args[-1]} timed out after {timeout_s:.0f} s") from exc
+        raise WayFailed(f"apt-get {command[0]} timed out after {timeout_s:.0f} s") from exc
     with (work / "apt.log").open("a") as out:
         out.write(done.stdout + done.stderr)
     if done.returncode != 0:
         errors = [ln for ln in done.stderr.splitlines() if ln.startswith(("E:", "Err"))]
         tail = errors[-1] if errors else (done.stderr.strip().splitlines() or ["?"])[-1]
-        raise WayFailed(f"apt-get {args[0]} failed: {tail[:200]}")
+        raise WayFailed(f"apt-get {command[0]} failed: {tail[:200]}")
 
 
 class PrivateApt:
@@ -220,7 +222,7 @@ class PrivateApt:
 
     def update(self) -> None:
         if not self.updated:
-            _apt([*self.opts, "--error-on=any", "update"], self.work, self.work, self.timeout_s)
+            _apt(self.opts, ["update", "--error-on=any"], self.work, self.work, self.timeout_s)
             self.updated = True
 
     def download(self, packages: Sequence[str], dest: Path) -> list[Path]:
@@ -228,7 +230,7 @@ class PrivateApt:
         self.update()
         dest.mkdir(parents=True, exist_ok=True)
         before = set(dest.glob("*.deb"))
-        _apt([*self.opts, "download", *packages], self.work, dest, self.timeout_s)
+        _apt(self.opts, ["download", *packages], self.work, dest, self.timeout_s)
         debs = sorted(set(dest.glob("*.deb")) - before)
         if len(debs) < len(packages):
             raise WayFailed(f"apt-get download gave {len(debs)} of {len(packages)} packages")
