@@ -92,7 +92,9 @@ def nearest_hits(
         if np.any(outside <= 0.0):
             return RayHits(np.zeros(beams), index)  # blinded: inside an object
 
-    directions = np.stack([np.cos(angles), np.sin(angles)], axis=1)  # (beams, 2) unit
+    directions = np.empty((beams, 2))  # (beams, 2) unit; np.stack costs more than the sines
+    directions[:, 0] = np.cos(angles)
+    directions[:, 1] = np.sin(angles)
 
     if segs.shape[0]:
         keep = np.flatnonzero(point_segment_distance_m(origin_x_m, origin_y_m, segs) <= max_range_m)
@@ -128,12 +130,21 @@ class _Scratch(threading.local):
     def __init__(self) -> None:
         self.floats: dict[str, NDArray[np.float64]] = {}
         self.flags: dict[str, NDArray[np.bool_]] = {}
+        self.numbers: NDArray[np.intp] = np.arange(0)
 
     def float_array(self, key: str, rows: int, cols: int) -> NDArray[np.float64]:
         buffer = self.floats.get(key)
         if buffer is None or buffer.size < rows * cols:
             buffer = self.floats[key] = np.empty(rows * cols, dtype=np.float64)
         return buffer[: rows * cols].reshape(rows, cols)
+
+    def beam_numbers(self, beams: int) -> NDArray[np.intp]:
+        """``np.arange(beams)``, kept (read-only) for the next scan of as many beams."""
+        numbers = self.numbers
+        if numbers.size != beams:
+            numbers = self.numbers = np.arange(beams)
+            numbers.flags.writeable = False
+        return numbers
 
     def flag_array(self, key: str, rows: int, cols: int) -> NDArray[np.bool_]:
         buffer = self.flags.get(key)
@@ -143,6 +154,14 @@ class _Scratch(threading.local):
 
 
 _SCRATCH = _Scratch()
+
+
+def _rows(first: NDArray[np.float64], second: NDArray[np.float64]) -> NDArray[np.float64]:
+    """``np.stack([first, second])`` without its Python-level overhead (a (2, n) array)."""
+    rows = np.empty((2, first.shape[0]))
+    rows[0] = first
+    rows[1] = second
+    return rows
 
 
 def _take_nearest(
@@ -161,7 +180,7 @@ def _take_nearest(
     np.multiply(invalid, np.inf, out=penalty)
     np.fmax(t, penalty, out=t)
     best = np.argmin(t, axis=1)
-    best_t = t[np.arange(t.shape[0]), best]
+    best_t = t[_SCRATCH.beam_numbers(t.shape[0]), best]
     closer = best_t < ranges
     ranges[closer] = best_t[closer]
     index[closer] = shape_ids[best[closer]]
@@ -193,8 +212,8 @@ def _nearest_segment_hits(
     t = _SCRATCH.float_array("t", beams, count)
     ok = _SCRATCH.flag_array("ok", beams, count)
     check = _SCRATCH.flag_array("check", beams, count)
-    np.matmul(directions, np.stack([ey, -ex]), out=denom)  # d x e
-    np.matmul(directions, np.stack([-wy, wx]), out=s)  # w x d
+    np.matmul(directions, _rows(ey, np.negative(ex)), out=denom)  # d x e
+    np.matmul(directions, _rows(np.negative(wy), wx), out=s)  # w x d
     np.abs(denom, out=t)
     np.greater(t, _PARALLEL_EPS, out=ok)  # not parallel (nor a zero-length segment)
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
@@ -235,7 +254,7 @@ def _nearest_circle_hits(
     b = _SCRATCH.float_array("b", beams, count)
     t = _SCRATCH.float_array("root", beams, count)
     invalid = _SCRATCH.flag_array("miss", beams, count)
-    np.matmul(directions, np.stack([mx, my]), out=b)
+    np.matmul(directions, _rows(mx, my), out=b)
     np.multiply(b, b, out=t)
     t -= c
     with np.errstate(invalid="ignore"):

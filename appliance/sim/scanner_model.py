@@ -18,6 +18,7 @@ arguments, so a test (or a replay) gets the same scan for the same inputs.
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -53,6 +54,16 @@ def beam_angles_rad(
     return angles
 
 
+@functools.lru_cache(maxsize=16)
+def _fixed_beam_angles_rad(
+    start_angle_rad: float, stop_angle_rad: float, step_rad: float
+) -> NDArray[np.float64]:
+    """`beam_angles_rad`, computed once per layout (every scan of a twin has the same)."""
+    angles = beam_angles_rad(start_angle_rad, stop_angle_rad, step_rad)
+    angles.flags.writeable = False
+    return angles
+
+
 def scanner_pose(
     vehicle_pose: Pose2D | tuple[float, float, float], mount: Pose2D | tuple[float, float, float]
 ) -> Pose2D:
@@ -82,7 +93,7 @@ def render_scan(
     ``noise_sigma_m=0`` gives exact geometry plus the bias, and leaves ``rng`` untouched.
     """
     pose = scanner_pose(vehicle_pose, mount)
-    device_angles = beam_angles_rad(start_angle_rad, stop_angle_rad, step_rad)
+    device_angles = _fixed_beam_angles_rad(start_angle_rad, stop_angle_rad, step_rad)
     world_angles = device_angles + (pose.yaw_rad - DEVICE_FORWARD_RAD)
     shapes = site.shapes_at(t_s)
     ranges, remission = cast_rays(
