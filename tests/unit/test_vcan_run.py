@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 from tools.vcan import apt, qemu
-from tools.vcan.common import Kernel, WayFailed, pytest_command
+from tools.vcan.common import PROBE_OK, Kernel, WayFailed, probe_verdict, pytest_command
 from tools.vcan.ways import WAYS, NoWay, cache_dir, failure_line, order_for, select
 
 BOOKWORM_DEB822 = """\
@@ -299,3 +299,38 @@ def test_static_elf_means_no_program_interpreter(tmp_path: Path) -> None:
     assert qemu.is_static_elf(tmp_path / "static")
     assert not qemu.is_static_elf(tmp_path / "dynamic")
     assert not qemu.is_static_elf(tmp_path / "script")
+
+
+# --- reading a probe boot ---
+
+AMX_PANIC_CONSOLE = """\
+Linux version 6.1.176 ...
+Run /tmp/vcan-probe-x/probe-init.sh as init process
+Kernel panic - not syncing: Attempted to kill init! exitcode=0x0000000b
+CPU: 0 PID: 1 Comm: probe-init.sh Not tainted 6.1.176
+"""
+
+
+def test_probe_verdict_passes_when_vcan0_came_up(tmp_path: Path) -> None:
+    (tmp_path / "probe.out").write_text(f"booted\n{PROBE_OK}\n")
+    probe_verdict(tmp_path, 0, False, 20.0)
+
+
+def test_probe_verdict_names_the_panic(tmp_path: Path) -> None:
+    (tmp_path / "console.log").write_text(AMX_PANIC_CONSOLE)
+    with pytest.raises(WayFailed) as err:
+        probe_verdict(tmp_path, 1, False, 20.0)
+    assert str(err.value) == (
+        "probe boot: init never ran (exit 1: "
+        "Kernel panic - not syncing: Attempted to kill init! exitcode=0x0000000b)"
+    )
+
+
+def test_probe_verdict_on_a_hang_and_on_a_missing_module(tmp_path: Path) -> None:
+    (tmp_path / "console.log").write_text("Linux version 7.2.7\nhostfs: mounted\n")
+    with pytest.raises(WayFailed, match=r"timed out after 20 s \(hostfs: mounted\)"):
+        probe_verdict(tmp_path, -9, True, 20.0)
+    (tmp_path / "probe.out").write_text("booted\n")
+    (tmp_path / "setup.log").write_text("insmod net/can/can.ko failed\nUnknown device type\n")
+    with pytest.raises(WayFailed, match=r"vcan0 did not come up .*can\.ko failed; Unknown device"):
+        probe_verdict(tmp_path, 0, False, 20.0)

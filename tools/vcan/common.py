@@ -236,7 +236,8 @@ def probe_verdict(work: Path, returncode: int, timed_out: bool, timeout_s: float
         return
     if "booted" in said:
         setup = [line for line in read_text(work / "setup.log").splitlines() if line.strip()]
-        raise WayFailed(f"probe boot: vcan0 did not come up ({'; '.join(setup[-3:]) or '?'})")
+        why = "; ".join(setup[-3:]) or console_problem(work / "console.log")
+        raise WayFailed(f"probe boot: init ran but vcan0 did not come up ({why})")
     if timed_out:
         raise WayFailed(
             f"probe boot timed out after {timeout_s:.0f} s "
