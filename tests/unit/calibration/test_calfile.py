@@ -5,20 +5,21 @@ from __future__ import annotations
 import json
 import math
 import os
+import tempfile
 import tomllib
 from datetime import UTC, datetime
 from pathlib import Path
 
 import pytest
 from click.testing import CliRunner
-from hypothesis import HealthCheck, assume, given, settings
+from hypothesis import given, settings
 from hypothesis import strategies as st
-from pydantic import ValidationError
 
 from appliance.cli_calibration import calibration
 from calibration.calfile import (
     BUILTIN_SIMULATED,
     MAX_POT_TO_WHEEL_COEFFS,
+    MIN_WHEEL_TRAVEL_RAD,
     Calibration,
     CalibrationError,
     CalibrationFile,
@@ -370,51 +371,50 @@ def calibration_files(draw: st.DrawFn) -> CalibrationFile:
     centre = draw(st.floats(500.0, 3595.0))
     low = draw(st.integers(max(0, math.ceil(centre) - 2000), math.ceil(centre) - 300))
     high = draw(st.integers(math.floor(centre) + 300, min(4095, math.floor(centre) + 2000)))
-    span = max(centre - low, high - centre)
-    linear = draw(st.sampled_from([1.0, -1.0])) * draw(st.floats(3.5, 25.0)) / span
+    near, span = sorted((centre - low, high - centre))
+    # The wheel travel at the far end is the drawn one, 3.5..25 rad; at the near end it is
+    # near / span of it, within 2 % (the higher terms below). Drawing it at least 5 % above
+    # MIN_WHEEL_TRAVEL_RAD * span / near keeps the near end valid by construction.
+    least_travel = max(3.5, MIN_WHEEL_TRAVEL_RAD * 1.05 * span / near)
+    linear = draw(st.sampled_from([1.0, -1.0])) * draw(st.floats(least_travel, 25.0)) / span
     count = draw(st.integers(1, MAX_POT_TO_WHEEL_COEFFS))
-    # small higher terms keep the slope within 10 % of the linear one: monotonic
+    # small higher terms keep the slope within 10 % of the linear one (monotonic) and the
+    # travel within 2 % of the linear one (sum of 0.01 / (power + 1))
     higher = [
         draw(st.floats(-0.01, 0.01)) / (power + 1) * linear / span**power
         for power in range(1, count)
     ]
-    try:
-        return CalibrationFile(
-            vehicle_name=draw(names),
-            created_utc=draw(st.datetimes(timezones=st.just(UTC))),
-            source=draw(st.text(st.characters(codec="utf-8"), min_size=1)),
-            steering=SteeringCalibration(
-                pot_centre_counts=centre,
-                pot_to_wheel_coeffs=(linear, *higher),
-                pot_valid_min_counts=low,
-                pot_valid_max_counts=high,
-                steering_ratio=draw(st.floats(1.0, 60.0, exclude_min=True)),
-            ),
-            counter_steer=draw(
-                st.none()
-                | st.builds(CounterSteerCalibration, k_ratio=st.none() | st.floats(0.0, 1.5))
-            ),
-            guidance=draw(
-                st.none()
-                | st.builds(
-                    GuidanceCalibration,
-                    look_ahead_m=st.none() | st.floats(0.0, 50.0, exclude_min=True),
-                )
-            ),
-        )
-    except ValidationError:
-        assume(False)  # the nearer end turned less than 0.5 rad: a rare draw
-        raise
+    return CalibrationFile(
+        vehicle_name=draw(names),
+        created_utc=draw(st.datetimes(timezones=st.just(UTC))),
+        source=draw(st.text(st.characters(codec="utf-8"), min_size=1)),
+        steering=SteeringCalibration(
+            pot_centre_counts=centre,
+            pot_to_wheel_coeffs=(linear, *higher),
+            pot_valid_min_counts=low,
+            pot_valid_max_counts=high,
+            steering_ratio=draw(st.floats(1.0, 60.0, exclude_min=True)),
+        ),
+        counter_steer=draw(
+            st.none() | st.builds(CounterSteerCalibration, k_ratio=st.none() | st.floats(0.0, 1.5))
+        ),
+        guidance=draw(
+            st.none()
+            | st.builds(
+                GuidanceCalibration,
+                look_ahead_m=st.none() | st.floats(0.0, 50.0, exclude_min=True),
+            )
+        ),
+    )
 
 
-@settings(
-    max_examples=200, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]
-)
+@settings(max_examples=200, deadline=None)
 @given(model=calibration_files())
-def test_write_then_load_is_exact(tmp_path: Path, model: CalibrationFile) -> None:
-    path = tmp_path / "cal.toml"
-    write_calibration(path, model)
-    loaded = read_calibration_file(path, model.vehicle_name)
+def test_write_then_load_is_exact(model: CalibrationFile) -> None:
+    with tempfile.TemporaryDirectory() as directory:  # a fresh one per example
+        path = Path(directory) / "cal.toml"
+        write_calibration(path, model)
+        loaded = read_calibration_file(path, model.vehicle_name)
     assert loaded == model
     assert loaded.created_utc.tzinfo is UTC
     assert dumps_calibration(loaded) == dumps_calibration(model)  # every float bit for bit

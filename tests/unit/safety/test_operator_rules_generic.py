@@ -13,9 +13,8 @@ import math
 from dataclasses import dataclass
 
 import pytest
-from hypothesis import assume, given, settings
+from hypothesis import given, settings
 from hypothesis import strategies as st
-from pydantic import ValidationError
 
 from appliance.config.models import Limits, SafetyTimeouts
 from safety.consistency import (
@@ -42,26 +41,55 @@ def positive(high: float) -> st.SearchStrategy[float]:
 
 
 @st.composite
-def valid_safety(draw: st.DrawFn) -> SafetyTimeouts:
-    """Any SafetyTimeouts the config would accept: the rules must hold for all of them."""
-    try:
-        return SafetyTimeouts(
-            steer_override_threshold_deg=draw(positive(30.0)),
-            steer_override_release_deg=draw(positive(30.0)),
-            steer_override_dwell_s=draw(st.floats(0.0, 2.0)),
-            steer_override_min_torque_nm=draw(st.floats(0.0, 30.0)),
-            steer_stop_margin_deg=draw(st.floats(0.0, 10.0)),
-            steer_tracking_tolerance_deg=draw(positive(30.0)),
-            steer_tracking_fault_after_s=draw(positive(5.0)),
-            pedal_override_margin_pct=draw(positive(50.0)),
-            pc104_error_budget_limit=draw(st.integers(1, 1000)),
-        )
-    except ValidationError:
-        assume(False)
-        raise
+def release_and_threshold_deg(draw: st.DrawFn) -> tuple[float, float]:
+    """``0 < release < threshold <= 30`` by construction: the threshold is drawn above."""
+    release = draw(st.floats(0.0, 30.0, exclude_min=True, exclude_max=True))
+    return release, draw(st.floats(release, 30.0, exclude_min=True))
+
+
+# Degrees at or above this stay normal floats in radians, never 0.
+SMALLEST_CONVERTIBLE_DEG = 1e-300
+# Two angles this far apart (relative) stay in order through math.radians' rounding.
+RADIANS_ORDER_GAP = 1.0 + 1e-14
+
+
+@st.composite
+def convertible_release_and_threshold_deg(draw: st.DrawFn) -> tuple[float, float]:
+    """A release and threshold that stay positive and ordered in radians, by construction."""
+    release = draw(st.floats(SMALLEST_CONVERTIBLE_DEG, 30.0 / RADIANS_ORDER_GAP))
+    return release, draw(st.floats(min(release * RADIANS_ORDER_GAP, 30.0), 30.0))
+
+
+@st.composite
+def valid_safety(draw: st.DrawFn, *, convertible: bool = False) -> SafetyTimeouts:
+    """Any SafetyTimeouts the config would accept: the rules must hold for all of them.
+
+    Drawn so that the config's validators hold by design (release below threshold).
+    ``convertible`` also keeps every angle the rules convert positive and ordered in
+    radians, so the rules accept the config at start-up; without it the draw covers the
+    config's whole range, down to angles whose radians collapse (see
+    :func:`radians_collapse`).
+    """
+    pair = convertible_release_and_threshold_deg() if convertible else release_and_threshold_deg()
+    release, threshold = draw(pair)
+    tolerance = st.floats(SMALLEST_CONVERTIBLE_DEG, 30.0) if convertible else positive(30.0)
+    return SafetyTimeouts(
+        steer_override_threshold_deg=threshold,
+        steer_override_release_deg=release,
+        steer_override_dwell_s=draw(st.floats(0.0, 2.0)),
+        steer_override_min_torque_nm=draw(st.floats(0.0, 30.0)),
+        steer_stop_margin_deg=draw(st.floats(0.0, 10.0)),
+        steer_tracking_tolerance_deg=draw(tolerance),
+        steer_tracking_fault_after_s=draw(positive(5.0)),
+        pedal_override_margin_pct=draw(positive(50.0)),
+        pc104_error_budget_limit=draw(st.integers(1, 1000)),
+    )
 
 
 valid_limits = st.builds(Limits, max_steer_angle_deg=positive(60.0))
+convertible_limits = st.builds(
+    Limits, max_steer_angle_deg=st.floats(SMALLEST_CONVERTIBLE_DEG, 60.0)
+)
 
 
 def radians_collapse(safety: SafetyTimeouts, limits: Limits) -> bool:
@@ -83,16 +111,11 @@ def radians_collapse(safety: SafetyTimeouts, limits: Limits) -> bool:
 def steering_params(
     safety: SafetyTimeouts, limits: Limits
 ) -> tuple[SteeringOverrideParams, SteeringTrackingParams]:
-    """The rules' parameters, or skip the rare config that the rules refuse at start-up."""
-    try:
-        return (
-            SteeringOverrideParams.from_config(safety, limits),
-            SteeringTrackingParams.from_config(safety),
-        )
-    except ValueError:
-        assert radians_collapse(safety, limits)  # refused for this reason and no other
-        assume(False)
-        raise
+    """The rules' parameters (a config whose radians collapse raises ValueError)."""
+    return (
+        SteeringOverrideParams.from_config(safety, limits),
+        SteeringTrackingParams.from_config(safety),
+    )
 
 
 @dataclass(frozen=True)
@@ -153,7 +176,8 @@ def steering_runs(draw: st.DrawFn, max_steer_angle_rad: float) -> list[Cycle]:
 def steering_cases(
     draw: st.DrawFn,
 ) -> tuple[SteeringOverrideParams, SteeringTrackingParams, list[Cycle]]:
-    override, tracking = steering_params(draw(valid_safety()), draw(valid_limits))
+    safety, limits = draw(valid_safety(convertible=True)), draw(convertible_limits)
+    override, tracking = steering_params(safety, limits)
     return override, tracking, draw(steering_runs(override.max_steer_angle_rad))
 
 
@@ -340,7 +364,7 @@ class TestPedalProperties:
                 assert overriding is (pedal_pct > actuator_pct + params.margin_pct)
 
     @settings(max_examples=100, deadline=None)
-    @given(valid_safety(), valid_limits, st.data())
+    @given(valid_safety(convertible=True), convertible_limits, st.data())
     def test_a_non_finite_operator_input_is_never_all_fine(
         self, safety: SafetyTimeouts, limits: Limits, data: st.DataObject
     ) -> None:
