@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import asyncio
 import json
 import math
+import time
 from collections.abc import AsyncIterator
 from pathlib import Path
 
@@ -17,6 +19,7 @@ from drivers.lms111.recording import (
     RecordingError,
     RecordingTruncated,
     RecordingWriter,
+    RecordStats,
     ReplayError,
     iter_chunks,
     iter_recording,
@@ -81,6 +84,40 @@ async def test_record_then_replay_gives_back_every_scan(twin: Lms111Twin, tmp_pa
     assert "541 beams" in scan_line(scans[0])
 
 
+async def record_until_corrupted(twin: Lms111Twin, path: Path, corrupted: int) -> RecordStats:
+    """Record until the twin has sent ``corrupted`` bad scans, then 1 s of good ones.
+
+    Not a fixed window: on a loaded machine the twin skips scans (they are gaps, not
+    corruptions), so a fixed time holds no known number of bad ones. Once the twin has
+    sent enough it stops corrupting, and the recorder's clock is moved on so that the
+    recording ends 1 s later: every bad scan is in the file by then, followed by good ones
+    (so a CoLa-A truncation is exposed by the next start marker). The receive times after
+    that point carry the clock's jump.
+    """
+    budget_s, after_s = 30.0, 1.0
+    offset_s = 0.0
+
+    def clock() -> float:
+        return time.monotonic() + offset_s
+
+    async def stop_corrupting_when_enough() -> None:
+        nonlocal offset_s
+        while twin.stats.corrupted < corrupted:
+            await asyncio.sleep(0.005)
+        twin.faults.corrupt_every = 0
+        # the deadline (at least budget_s after started_s) is now after_s away
+        offset_s = budget_s - after_s - (time.monotonic() - started_s)
+
+    started_s = time.monotonic()
+    watcher = asyncio.create_task(stop_corrupting_when_enough())
+    try:
+        return await record(
+            "127.0.0.1", twin.port, path, budget_s, twin.device.dialect, clock=clock
+        )
+    finally:
+        watcher.cancel()
+
+
 @pytest.mark.parametrize(
     "twin",
     [(Dialect.COLA_B, TwinFaults(corrupt_every=5)), (Dialect.COLA_A, TwinFaults(corrupt_every=5))],
@@ -91,13 +128,18 @@ async def test_a_misbehaving_scanner_replays_with_its_errors(
     twin: Lms111Twin, tmp_path: Path
 ) -> None:
     path = tmp_path / "bad.lms111rec"
-    stats = await record("127.0.0.1", twin.port, path, 0.5, twin.device.dialect)
-    summary = summarize_recording(path)
-    assert summary.errors == stats.malformed_telegrams >= 3
-    assert summary.errors in (twin.stats.corrupted, twin.stats.corrupted - 1)  # last in flight
+    stats = await record_until_corrupted(twin, path, 4)
+    events: list[Scan | ReplayError] = []
+    summary = summarize_recording(path, events.append)
+    assert summary.errors == stats.malformed_telegrams == twin.stats.corrupted >= 4
     assert summary.scans == stats.scans
-    # each corrupted scan is a counter gap; the twin may also skip scans itself under load
-    assert summary.errors <= summary.dropped_scans <= summary.errors + twin.stats.scans_skipped
+    # Each corrupted scan between two good ones is a counter gap; one before the first good
+    # scan (the recording started next to it) is not. The twin may also skip scans itself
+    # under load.
+    good = [i for i, event in enumerate(events) if isinstance(event, Scan)]
+    between = [e for e in events[good[0] : good[-1]] if isinstance(e, ReplayError)]
+    assert len(between) >= summary.errors - 1
+    assert len(between) <= summary.dropped_scans <= len(between) + twin.stats.scans_skipped
 
 
 async def test_a_truncated_recording_is_reported_after_its_complete_records(
