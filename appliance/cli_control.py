@@ -196,16 +196,17 @@ def _event_loop_line(doc: dict[str, Any]) -> str:
     if longest is None:
         return ""
     by = _text(lag.get("longest_callback_by"))
-    line = f"event loop: longest callback {longest:.1f} ms ({by}"
-    cpu = _finite(lag.get("longest_callback_cpu_ms"))
-    line += f", {cpu:.1f} ms on the CPU)" if cpu is not None else ")"
+    line = f"event loop: longest callback {longest:.1f} ms ({by})"
     window = _finite(lag.get("window_s"))
     slow = _finite(lag.get("slow_callbacks"))
     busy = _finite(lag.get("busy_pct"))
     if window is not None and slow is not None:
         line += f", {slow:.0f} slow in the last {window:.1f} s"
+    cpu = _finite(lag.get("cpu_pct"))
     if busy is not None:
         line += f", {busy:.0f} % busy"
+        if cpu is not None:
+            line += f" ({cpu:.0f} % CPU)"
     worst = _dict(lag.get("since_start"))
     worst_ms = _finite(worst.get("longest_callback_ms"))
     if worst_ms is not None:

@@ -347,7 +347,7 @@ class Daemon:
                     log.warning(
                         "event_loop_stalled",
                         longest_callback_ms=round(lag.longest_ms, 3),
-                        cpu_ms=round(lag.longest_cpu_ms, 3),
+                        process_cpu_pct=round(lag.cpu_pct, 1),
                         by=lag.longest_by,
                         slow_callbacks=lag.slow_callbacks,
                     )
