@@ -32,6 +32,7 @@ from drivers.pc104.messages import (
     PULSE_COUNTER_MODULO,
     ControlSource,
     Inclinometer,
+    Message,
     MotionCommand,
     MotionPattern,
     MotorPulses,
@@ -48,6 +49,7 @@ WORLD_SOURCE = "pc104"  # the twin's slot in SimWorld.set_inputs
 _ROW_LIMIT_RAD = 1.57
 _SPEED_LIMIT_MPS = 10.0
 _TILT_LIMIT_RAD = 0.5236
+_DECODED_FRAMES = 64  # a held command and the heartbeat, every counter value: 32
 
 
 class OutFrame(NamedTuple):
@@ -140,6 +142,7 @@ class Pc104TwinCore:
         self.restarts = -1  # restart() counts the first boot as 0
         # per message type: the last message and its frames by counter (see _encode)
         self._encoded: dict[type, tuple[Pc104Message, dict[int, tuple[int, bytes]]]] = {}
+        self._decoded: dict[tuple[int, bytes], tuple[Message, int]] = {}  # see _decode
         self.restart(now_s)
 
     def restart(self, now_s: float) -> None:
@@ -170,17 +173,33 @@ class Pc104TwinCore:
         if self.faults.bus_off or arbitration_id not in protocol.HL_IDS:
             return
         try:
-            frame = protocol.decode(arbitration_id, data, now_s)
+            message, counter = self._decode(arbitration_id, data, now_s)
         except protocol.Pc104ProtocolError:
             self._invalid(now_s, arbitration_id)
             return
-        if not isinstance(frame.message, MotionCommand):
+        if not isinstance(message, MotionCommand):
             return  # HL_Heartbeat: liveness only; the command timeout is what stops us
-        verdict = self.command_monitor.update(now_s, frame.counter)
+        verdict = self.command_monitor.update(now_s, counter)
         if verdict is RxVerdict.ACCEPTED:
-            self.command = frame.message
+            self.command = message
         elif verdict is not RxVerdict.RESYNCING:
             self._invalid(now_s, None)
+
+    def _decode(self, arbitration_id: int, data: bytes, now_s: float) -> tuple[Message, int]:
+        """`protocol.decode`'s message and counter, remembered for frames seen before.
+
+        The high level repeats its frames (a held command with its counter cycling through
+        16 values, the heartbeat): a frame already decoded is the same message again. Only
+        valid frames are remembered, and at most `_DECODED_FRAMES` of them.
+        """
+        key = (arbitration_id, bytes(data))
+        decoded = self._decoded.get(key)
+        if decoded is None:
+            frame = protocol.decode(arbitration_id, data, now_s)  # raises for a bad frame
+            if len(self._decoded) >= _DECODED_FRAMES:
+                self._decoded.clear()
+            decoded = self._decoded[key] = (frame.message, frame.counter)
+        return decoded
 
     def _invalid(self, now_s: float, arbitration_id: int | None) -> None:
         self.bad_command_frames = (self.bad_command_frames + 1) % 256
