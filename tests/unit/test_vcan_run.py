@@ -219,6 +219,19 @@ def test_when_nothing_works_one_line_names_every_way_and_why() -> None:
     assert "E: network down" in line
 
 
+def test_an_unforeseen_error_fails_that_way_only() -> None:
+    def full_disk() -> Kernel:
+        raise OSError(28, "No space left on device")
+
+    calls: list[str] = []
+    finders = {w: finder(w, None, calls) for w in WAYS}
+    finders["native"] = finder("native", "no SocketCAN", calls)
+    finders["uml-system"] = full_disk
+    assert select(order_for("auto"), finders).way == "uml-testing"
+    with pytest.raises(NoWay, match=r"uml-system: OSError: \[Errno 28\] No space left"):
+        select(("uml-system",), finders)
+
+
 def test_failure_line_format() -> None:
     assert failure_line([("native", "no CAN"), ("qemu", "not installed")]) == (
         "vcan_run: no kernel with SocketCAN vcan found (native: no CAN; qemu: not installed)"

@@ -37,10 +37,11 @@ def select(order: Sequence[str], finders: Mapping[str, Callable[[], Kernel]]) ->
     for way in order:
         try:
             return finders[way]()
-        except WayFailed as exc:
-            failures.append((way, str(exc)))
+        except Exception as exc:  # an unforeseen error (a full disk, say) fails this way only
+            why = str(exc) if isinstance(exc, WayFailed) else f"{type(exc).__name__}: {exc}"
+            failures.append((way, why))
             if way != order[-1]:
-                log(f"{way} does not work here ({exc}); trying the next way")
+                log(f"{way} does not work here ({why}); trying the next way")
     raise NoWay(failures)
 
 
