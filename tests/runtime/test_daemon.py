@@ -49,9 +49,38 @@ def make_daemon(
     config = config or load_config("sim")
     target = RecordingTarget()
     daemon = Daemon(
-        config, extra_services=extra, safe_stop=SafeStop(safe_command(config), [target])
+        config,
+        extra_services=extra,
+        safe_stop=SafeStop(safe_command(config), [target]),
+        # A socket of this test's own, not the config's relative var/dbw/control.sock that
+        # any other daemon started from the same directory would be serving too.
+        control_socket=str(notify.path.parent / "control.sock"),
     )
     return daemon, target
+
+
+def record_pings(monkeypatch: pytest.MonkeyPatch, daemon: Daemon) -> list[tuple[float, bool]]:
+    """Each WATCHDOG ping as the daemon sends it: its time, and whether an error was latched.
+
+    The fake socket's arrival times lag the sends by a scheduling delay (tens of ms on a
+    loaded machine), so when a ping was sent is judged here, not from its arrival.
+    """
+    sent: list[tuple[float, bool]] = []
+    ping = daemon.notifier.watchdog
+
+    def recorded_ping() -> None:
+        sent.append((daemon.clock(), daemon.supervisor.latched_error is not None))
+        ping()
+
+    monkeypatch.setattr(daemon.notifier, "watchdog", recorded_ping)
+    return sent
+
+
+async def until(condition: Callable[[], bool], timeout_s: float = 20.0) -> None:
+    """Wait (without blocking the loop) for ``condition``; the bound is only a safety net."""
+    async with asyncio.timeout(timeout_s):
+        while not condition():
+            await asyncio.sleep(0.005)
 
 
 def hanging_service(
@@ -120,17 +149,19 @@ async def test_watchdog_stops_for_good_when_a_critical_service_is_stuck(
         heartbeat_deadline_s=0.1,
     )
     daemon, target = make_daemon(monkeypatch, notify_socket, [stuck])
+    sent = record_pings(monkeypatch, daemon)
     run = asyncio.ensure_future(daemon.run(duration_s=None, handle_signals=False))
     await asyncio.to_thread(notify_socket.wait_for, "WATCHDOG=1")
     trigger.set()
-    await asyncio.sleep(1.5)
-    pings = notify_socket.lines("WATCHDOG=1")
-    assert hung_at
-    last_ping_after_hang_s = pings[-1].at_s - hung_at[0]
-    # The last ping may precede the hang; none comes later than the heartbeat deadline.
-    assert last_ping_after_hang_s <= 0.1 + WATCHDOG_S / 2
-    assert pings[-1].at_s < time.monotonic() - 1.0  # and none since
-    assert any("DEGRADED" in m.line for m in notify_socket.lines("STATUS="))
+    await until(lambda: bool(hung_at))
+    # Watch for more than a second beyond the heartbeat deadline, however long the loaded
+    # machine takes: until the status service, still running, has beaten that late.
+    status = daemon.supervisor.records["status"].heartbeat
+    await until(lambda: (status.last_beat_s or 0.0) > hung_at[0] + 0.1 + 1.0)
+    # The last ping may precede the hang; none is sent later than the heartbeat deadline,
+    # and none since.
+    assert sent[-1][0] <= hung_at[0] + 0.1
+    await asyncio.to_thread(notify_socket.wait_for, "STATUS=DEGRADED", 10.0)
     daemon.request_stop("test over")
     # The stuck task cannot be joined: the daemon reports that the process must exit hard.
     result = await asyncio.wait_for(run, 2.0)
@@ -156,13 +187,13 @@ async def test_watchdog_pauses_and_resumes_around_a_restarted_hang(
     run = asyncio.ensure_future(daemon.run(duration_s=None, handle_signals=False))
     await asyncio.to_thread(notify_socket.wait_for, "WATCHDOG=1")
     trigger.set()
-    await asyncio.sleep(1.0)
+    await until(lambda: bool(hung_at))
+    # Pings must resume once the service is healthy again: wait for one, not for a time.
+    await asyncio.to_thread(notify_socket.wait_for, "WATCHDOG=1", 10.0, hung_at[0] + 0.1)
     daemon.request_stop("test over")
     result = await asyncio.wait_for(run, 2.0)
     assert result.exit_code == 0 and not result.must_force_exit
     assert daemon.supervisor.records["planner"].budget.total_restarts == 1
-    after = [p for p in notify_socket.lines("WATCHDOG=1") if p.at_s > hung_at[0] + 0.1]
-    assert after, "pings must resume once the service is healthy again"
     # The critical failure held the vehicle safe before anything else happened.
     assert any("critical service planner failed" in reason for _, reason in target.calls)
 
@@ -183,13 +214,26 @@ async def test_latched_error_withholds_watchdog_and_holds_safe(
         heartbeat_deadline_s=0.5,
     )
     daemon, target = make_daemon(monkeypatch, notify_socket, [spec])
-    result = await daemon.run(duration_s=1.0, handle_signals=False)
-    assert daemon.supervisor.latched_error is not None
+    # A ping sent just before the latch may arrive after it: judge the sends.
+    sent = record_pings(monkeypatch, daemon)
+    run = asyncio.ensure_future(daemon.run(duration_s=None, handle_signals=False))
+    # Not a fixed run time: however long the start-up and the three failures take, wait
+    # for the latch, then until the status service has run a whole ping period beyond it
+    # (it would have pinged by then if it still thought the daemon healthy).
+    await until(lambda: daemon.supervisor.latched_error is not None)
+    latched = daemon.supervisor.latched_error
+    assert latched is not None
+    status = daemon.supervisor.records["status"].heartbeat
+    await until(lambda: (status.last_beat_s or 0.0) > latched.at_s + WATCHDOG_S)
+    error = await asyncio.to_thread(notify_socket.wait_for, "STATUS=ERROR", 10.0)
+    daemon.request_stop("test over")
+    result = await asyncio.wait_for(run, 5.0)
     assert result.exit_code == 0
-    statuses = [m.line for m in notify_socket.lines("STATUS=ERROR")]
-    assert statuses and "servo board unplugged" in statuses[0]
-    latched_at = daemon.supervisor.latched_error.at_s
-    assert not [p for p in notify_socket.lines("WATCHDOG=1") if p.at_s > latched_at + 0.05]
+    assert "servo board unplugged" in error.line
+    assert not [at_s for at_s, after_latch in sent if after_latch]
+    assert all(at_s <= latched.at_s for at_s, _ in sent)
+    notify_socket.wait_for("STOPPING=1")  # every earlier datagram has arrived too
+    assert len(notify_socket.lines("WATCHDOG=1")) == len(sent)  # no ping but these
     failures = [r for _, r in target.calls if "critical service actuators failed" in r]
     assert len(failures) == 3  # the first run and both restarts
 
