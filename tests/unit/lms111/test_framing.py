@@ -5,7 +5,7 @@ from __future__ import annotations
 import itertools
 
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from drivers.lms111 import NEED_DATA, ColaFramer, Dialect, ProtocolError, Telegram, frame
@@ -194,7 +194,7 @@ _STREAM_PIECES = st.one_of(
 )
 
 
-@settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=150, deadline=None)
 @given(
     dialect=st.sampled_from(list(Dialect)),
     pieces=st.lists(_STREAM_PIECES, max_size=8),
