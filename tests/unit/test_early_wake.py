@@ -17,17 +17,36 @@ from drivers.actuators.messages import (
 )
 
 
+class FakeClock:
+    """The ticker's clock, set by the test: what a tick returns does not depend on how
+    fast a loaded machine runs the event loop (only the order of its timers matters)."""
+
+    def __init__(self) -> None:
+        self.now_s = 0.0
+
+    def __call__(self) -> float:
+        return self.now_s
+
+
 async def test_an_early_wake_is_an_extra_cycle_and_keeps_the_schedule() -> None:
-    ticker = FixedRateTicker(0.1)
+    clock = FakeClock()
+    ticker = FixedRateTicker(0.1, clock=clock)
     first_s = await ticker.tick()
-    asyncio.get_running_loop().call_later(0.01, ticker.wake_early)
+    assert first_s == 0.0  # the first tick is due at once; the next at 0.1 s
+    clock.now_s = 0.01
+    asyncio.get_running_loop().call_soon(ticker.wake_early)
     early_s = await ticker.tick()
-    assert early_s - first_s < 0.06  # well before the 0.1 s tick
+    assert early_s == 0.01  # returned at the wake, well before the 0.1 s tick
     assert ticker.early_wakes == 1
     assert ticker.stats.cycles == 1  # not a scheduled cycle: no jitter sample
+    clock.now_s = 0.1  # the original deadline is due
     scheduled_s = await ticker.tick()
-    assert 0.09 <= scheduled_s - first_s < 0.15  # the original deadline, not early + period
+    assert scheduled_s == 0.1
     assert ticker.stats.cycles == 2
+    # The original deadline, not early + period (0.11 s): the tick due at 0.1 s was on time.
+    report = ticker.stats.report()
+    assert report.jitter_p50_ms == report.jitter_max_ms == 0.0
+    assert report.overruns == 0
 
 
 async def test_a_wake_with_no_tick_pending_does_nothing() -> None:
