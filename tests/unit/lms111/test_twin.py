@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import asyncio
 import math
+import time
 
 import numpy as np
 import numpy.typing as npt
@@ -220,14 +221,21 @@ async def test_run_serves_and_beats_until_cancelled_then_closes_the_port() -> No
         load_site("launcher"), Pose2D(0.0, 0.0, 0.0), lambda _: Pose2D(-10.0, 0.0, 0.0)
     )
     beats: list[float] = []
+    started_s = time.monotonic()
     task = asyncio.create_task(twin.run(lambda: beats.append(0.0)))
-    await asyncio.sleep(0.1)
-    session = await Lms111Session.connect("127.0.0.1", twin.port)
-    assert parse_device_status(await session.request(read_device_status())).measuring
-    await session.close()
+    async with asyncio.timeout(10.0):  # events, not a fixed time: a loaded machine is slow
+        while not twin.running:
+            await asyncio.sleep(0.005)
+        session = await Lms111Session.connect("127.0.0.1", twin.port)
+        assert parse_device_status(await session.request(read_device_status())).measuring
+        await session.close()
+        while len(beats) < 3:
+            await asyncio.sleep(0.005)
     task.cancel()
     await asyncio.gather(task, return_exceptions=True)
-    assert 3 <= len(beats) <= 7  # one per 20 ms period
+    elapsed_s = time.monotonic() - started_s
+    # one per 20 ms period, on the schedule: never more than the periods that began
+    assert 3 <= len(beats) <= elapsed_s / twin.device.period_s + 1
     assert not twin.running
     with pytest.raises(Lms111LinkError, match="failed"):
         await Lms111Session.connect("127.0.0.1", twin.port)
