@@ -114,6 +114,10 @@ class Soak:
             raise RuntimeError(f"{name} refused: {why}")
 
     async def speed_hold(self, speed_mps: float) -> None:
+        if self.core.state.mode is Mode.ERROR:  # a fault in the idle phase: reset it first
+            await self.until("the fault to clear", lambda: not self.core.faults.active_faults)
+            self.press("disengage")  # the manual-override press that acknowledges it
+            await self.until("READY", self._ready)
         self.press("engage")
         await self.until("ENGAGED", lambda: self.core.state.mode is Mode.ENGAGED, 5.0)
         self.press("speed_plus")  # the hold starts at the measured speed: at rest
@@ -126,6 +130,9 @@ class Soak:
                 raise RuntimeError(f"speed hold left at {self.core.state.set_speed_mps} m/s")
         held = self.core.state.set_speed_mps
         assert held is not None and abs(held - speed_mps) < step, held
+
+    def _ready(self) -> bool:
+        return self.core.state.mode is Mode.READY
 
     def lease_expiries(self) -> int:
         boards = self.daemon.io.boards
@@ -176,19 +183,22 @@ class Soak:
         ]
 
 
-async def soak(rate_hz: float, idle_s: float, engaged_s: float, speed_mps: float) -> list[str]:
+def say(*lines: str) -> None:
+    print(*lines, sep="\n", flush=True)
+
+
+async def soak(rate_hz: float, idle_s: float, engaged_s: float, speed_mps: float) -> None:
     with tempfile.TemporaryDirectory(prefix="dbw-soak-", dir="/tmp") as directory:
         bench = Soak(rate_hz, os.path.join(directory, "control.sock"))
         run = asyncio.ensure_future(bench.daemon.run(handle_signals=False))
         try:
             await bench.until("READY", lambda: bench.core.state.mode is Mode.READY)
             await asyncio.sleep(2.0)  # past start-up: the first reconnects are not the soak
-            lines = [f"### {rate_hz:g} Hz (period {1e3 / rate_hz:.1f} ms)"]
-            lines += await bench.phase("idle in READY", idle_s)
+            say(f"### {rate_hz:g} Hz (period {1e3 / rate_hz:.1f} ms)")
+            say(*await bench.phase("idle in READY", idle_s))
             if engaged_s > 0:
                 await bench.speed_hold(speed_mps)
-                lines += await bench.phase(f"engaged, speed hold {speed_mps:g} m/s", engaged_s)
-            return lines
+                say(*await bench.phase(f"engaged, speed hold {speed_mps:g} m/s", engaged_s))
         finally:
             bench.daemon.request_stop("soak over")
             await asyncio.wait_for(run, 10.0)
@@ -214,8 +224,7 @@ def main(argv: list[str] | None = None) -> None:
     print("goals: 0 missed cycles, jitter p99 <= 2 ms at 50 Hz and <= 3 ms at 100 Hz, 0 lease")
     print("expiries, 0 faults; printed, never asserted")
     for rate_hz in args.rate_hz:
-        for line in asyncio.run(soak(rate_hz, args.idle_s, args.engaged_s, args.speed_mps)):
-            print(line, flush=True)
+        asyncio.run(soak(rate_hz, args.idle_s, args.engaged_s, args.speed_mps))
 
 
 if __name__ == "__main__":
