@@ -97,6 +97,7 @@ class Pc104Client:
         self._state = HighLevelState.STANDBY
         self._counters = {protocol.spec_for(t).frame_id: 0 for t in (MotionCommand, HlHeartbeat)}
         self._link: BusLink | None = None
+        self._send_loss: LinkLost | None = None  # a send for a caller found the link lost
         self._next_command_s = self._next_heartbeat_s = -math.inf
         self._last_command_sent_s = -math.inf
         self._status: Pc104Status | None = None
@@ -138,8 +139,8 @@ class Pc104Client:
             or previous.pattern is not command.pattern
             or abs(command.speed_mps) < abs(previous.speed_mps)
         )
-        if urgent or now - self._last_command_sent_s >= self.params.command_period_s / 2:
-            self._send_command_frame(link, now)
+        due = urgent or now - self._last_command_sent_s >= self.params.command_period_s / 2
+        if due and self._send_for_caller(lambda: self._send_command_frame(link, now)):
             self._next_command_s = now + self.params.command_period_s
 
     def set_state(self, state: HighLevelState) -> None:
@@ -149,8 +150,22 @@ class Pc104Client:
         link = self._link
         if changed and link is not None:
             now = self._clock()
-            self._transmit(link, HlHeartbeat(state), now)
-            self._next_heartbeat_s = now + self._heartbeat_period_s
+            if self._send_for_caller(lambda: self._transmit(link, HlHeartbeat(state), now)):
+                self._next_heartbeat_s = now + self._heartbeat_period_s
+
+    def _send_for_caller(self, send: Callable[[], None]) -> bool:
+        """Send now on behalf of a caller (the control cycle): a lost link is this client's
+        to handle, never the caller's. It is kept for the serve loop, which closes the bus
+        and reopens it; the caller's cycle goes on, and the PC104's inputs going stale
+        make the fault. (Seen: a USB-CAN adapter gone, EIO on write, crashed the control
+        service instead of faulting the core.)"""
+        try:
+            send()
+        except LinkLost as exc:
+            if self._send_loss is None:
+                self._send_loss = exc
+            return False
+        return True
 
     def health(self, now_s: float | None = None) -> LinkHealth:
         live = now_s is None
@@ -205,6 +220,7 @@ class Pc104Client:
                     self._lost(f"cannot open the bus: {exc}")
                     continue
                 self._link = link
+                self._send_loss = None  # whatever the old link did is over
                 accepted_before = self.monitors[self._status_id].counts.accepted
                 try:
                     await self._serve(link, beat)
@@ -237,6 +253,9 @@ class Pc104Client:
         self._next_command_s = self._next_heartbeat_s = now_s
         while True:
             link.check()
+            if self._send_loss is not None:
+                loss, self._send_loss = self._send_loss, None
+                raise loss
             now_s = self._clock()
             if now_s >= self._next_command_s:
                 self._send_command_frame(link, now_s)
