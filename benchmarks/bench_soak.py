@@ -26,6 +26,7 @@ import sys
 import tempfile
 import time
 from collections import Counter
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 from appliance.config import VehicleConfig, load_config
@@ -34,7 +35,7 @@ from appliance.core.output import CoreOutput
 from appliance.daemon import Daemon
 from appliance.logs import configure_logging
 from appliance.modes import Mode
-from appliance.timing import RateStats
+from appliance.timing import JitterReport, RateStats
 
 WAIT_S = 60.0
 CLOCK_TICKS_S = os.sysconf("SC_CLK_TCK")
@@ -86,6 +87,26 @@ class Watch:
     def clear(self) -> None:
         self.faults.clear()
         self.modes.clear()
+
+
+class PhaseRecorder:
+    """Every wake-up of the control loop in a phase, beside the daemon's own statistics."""
+
+    def __init__(self) -> None:
+        self.stats = RateStats(window=10_000_000)
+        self.original: Callable[[float, float, int], None] | None = None
+
+    def tee(self, update: Callable[[float, float, int], None]) -> Callable[..., None]:
+        self.original = update
+
+        def both(scheduled_s: float, actual_s: float, missed_ticks: int = 0) -> None:
+            update(scheduled_s, actual_s, missed_ticks)
+            self.stats.update(scheduled_s, actual_s, missed_ticks)
+
+        return both
+
+    def report(self) -> JitterReport:
+        return self.stats.report()
 
 
 class Soak:
@@ -141,8 +162,12 @@ class Soak:
 
     async def phase(self, title: str, seconds: float) -> list[str]:
         control = self.daemon.control
-        window = int(seconds * self.rate_hz * 1.2) + 100
-        control.ticker.stats = RateStats(window=window)  # every cycle of the phase
+        # Every cycle of the phase, kept here: the daemon's own window stays its 5,000
+        # samples, because its heartbeat takes percentiles of it every second (a window
+        # of a whole phase made that a 4-25 ms callback of its own in an earlier run).
+        recorder = PhaseRecorder()
+        control.ticker.stats.reset()
+        control.ticker.stats.update = recorder.tee(control.ticker.stats.update)  # type: ignore[method-assign]
         control.step_times = StepTimes()
         self.watch.clear()
         self.daemon.loop_monitor.reset()
@@ -162,7 +187,9 @@ class Soak:
         wall_s = time.monotonic() - wall0
         daemon_cpu = 100 * (time.process_time() - cpu0) / wall_s
         sim_cpu = 100 * (cpu_s(sim_pid) - sim0) / wall_s if sim_pid else float("nan")
-        r = control.ticker.stats.report()
+        assert recorder.original is not None
+        control.ticker.stats.update = recorder.original  # type: ignore[method-assign,assignment]
+        r = recorder.report()
         now = self.core.state
         faults = sum(self.watch.faults.values())
         fault_names = ", ".join(f"{k} x{v}" for k, v in sorted(self.watch.faults.items()))
