@@ -192,6 +192,9 @@ def _loop_line(doc: dict[str, Any]) -> str:
 def _event_loop_line(doc: dict[str, Any]) -> str:
     """Who held the event loop longest, in the last window and since start."""
     lag = _dict(doc.get("event_loop"))
+    disabled = _dict(lag.get("since_start")).get("disabled")
+    if disabled:
+        return f"event loop: not monitored: {_text(disabled)}"
     longest = _finite(lag.get("longest_callback_ms"))
     if longest is None:
         return ""

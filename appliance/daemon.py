@@ -177,7 +177,8 @@ class Daemon:
         # GIL with the event loop; by default a busy thread keeps it for up to 5 ms, a
         # quarter of a 50 Hz cycle. Let the loop thread back in after 1 ms.
         sys.setswitchinterval(SWITCH_INTERVAL_S)
-        self.loop_monitor.install(loop)
+        if not self.loop_monitor.install(loop):
+            log.warning("loop_monitor_disabled", reason=self.loop_monitor.disabled_reason)
         self._stop_requested = asyncio.Event()
         if handle_signals:
             for signum in (signal.SIGTERM, signal.SIGINT):

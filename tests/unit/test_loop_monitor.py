@@ -139,3 +139,20 @@ def test_dbw_status_shows_who_held_the_loop() -> None:
     assert "2 slow in the last 1.0 s" in line
     assert "31 % busy (12 % CPU)" in line
     assert "worst since start 41.0 ms (task status)" in line
+
+
+def test_a_clock_too_costly_to_read_leaves_the_loop_untimed_and_says_why() -> None:
+    monitor = LoopMonitor()
+    monitor.clock_read_s = lambda reads=200: 32e-6  # type: ignore[method-assign]  # UML's
+    loop = asyncio.new_event_loop()
+    try:
+        assert monitor.install(loop) is False
+        loop.run_until_complete(asyncio.sleep(0))
+        assert monitor.window().callbacks == 0
+        assert "32.0 us" in monitor.disabled_reason
+        doc = {"event_loop": {**monitor.window().as_dict(), "since_start": monitor.worst()}}
+        line = next(x for x in render_status(doc).splitlines() if x.startswith("event loop"))
+        assert line.startswith("event loop: not monitored: a clock read costs 32.0 us")
+    finally:
+        monitor.uninstall()
+        loop.close()
