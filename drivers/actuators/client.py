@@ -45,6 +45,7 @@ from drivers.actuators.messages import (
     encode_payload,
 )
 from drivers.actuators.protocol import NEED_DATA, ActuatorCodec, Role
+from drivers.wakeup import Wakeup
 
 log = get_logger("actuators")
 
@@ -120,7 +121,7 @@ class ActuatorClient(Generic[TelemetryT]):
         self.codec = ActuatorCodec(Role.HOST)
         self._serial: Any = None
         self._fd: int | None = None
-        self._lost = asyncio.Event()
+        self._lost = Wakeup()
         self._lost_reason = ""
         self._command: Command | None = None
         self._lease_until_s: float | None = None
@@ -163,9 +164,10 @@ class ActuatorClient(Generic[TelemetryT]):
             )
         encode_payload(command)  # range check up front, not at the next tick
         self._command = command
-        self._lease_until_s = None if lease_s is None else self._clock() + lease_s
+        now_s = self._clock()
+        self._lease_until_s = None if lease_s is None else now_s + lease_s
         self._lease_expired_logged = False
-        self._send_current()
+        self._send_current(now_s)
 
     def clear_command(self) -> None:
         """Stop commanding: the board's own timeout puts it in its safe default."""
@@ -315,11 +317,11 @@ class ActuatorClient(Generic[TelemetryT]):
                 self._stale_reported = False
                 self._logger().info("telemetry_fresh")
 
-    def _send_current(self) -> None:
+    def _send_current(self, now_s: float) -> None:
         command, fd = self._command, self._fd
         if command is None or fd is None or self._lost.is_set():
             return
-        if self._lease_until_s is not None and self._clock() > self._lease_until_s:
+        if self._lease_until_s is not None and now_s > self._lease_until_s:
             if not self._lease_expired_logged:
                 self._lease_expired_logged = True
                 self.lease_expiries += 1
@@ -344,7 +346,7 @@ class ActuatorClient(Generic[TelemetryT]):
         while True:
             now_s = self._clock()
             if now_s >= next_send_s:
-                self._send_current()
+                self._send_current(now_s)
                 next_send_s += self.command_period_s
                 if next_send_s <= now_s:
                     next_send_s = now_s + self.command_period_s
@@ -357,11 +359,7 @@ class ActuatorClient(Generic[TelemetryT]):
             wake_s = next_send_s
             if not stale:  # wake exactly when the newest sample goes stale
                 wake_s = min(wake_s, now_s + self.max_age_s - self.telemetry.age_s(now_s))
-            try:
-                async with asyncio.timeout(max(0.0, wake_s - self._clock()) + 1e-4):
-                    await self._lost.wait()
-            except TimeoutError:
-                pass
+            await self._lost.wait(max(0.0, wake_s - self._clock()) + 1e-4)
 
     def _check_stale(self, now_s: float) -> bool:
         stale = self.is_stale(now_s)
