@@ -1,7 +1,7 @@
 """One open CAN link on python-can's own plumbing, and the failure rules both ends share.
 
 A :class:`BusLink` is a ``can.Bus`` with a ``can.Notifier`` (on the running loop) feeding a
-``can.AsyncBufferedReader``: with socketcan (and SLCAN) the notifier watches the file
+small buffered reader: with socketcan (and SLCAN) the notifier watches the file
 descriptor from the event loop, with ``virtual`` it runs python-can's receive thread.
 What python-can leaves to the application is deciding what a failure means:
 
@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import asyncio
 import errno
+from collections import deque
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from typing import Any
@@ -32,10 +33,14 @@ import can
 
 from appliance.config.models import CanEndpoint, CanInterface
 from drivers.pc104.slcan import SlcanHostBus
+from drivers.wakeup import Wakeup
 
 BusFactory = Callable[[], can.BusABC]
 # How often python-can's receive thread (virtual bus) checks whether it should stop.
 NOTIFIER_POLL_S = 0.05
+# Frames read per readiness callback (see _ReportingNotifier); a bounded turn, so a flood
+# cannot hold the loop: 64 frames is a few milliseconds of a saturated 1 Mbit/s bus.
+MAX_FRAMES_PER_WAKE = 64
 _DROP_ERRNOS = frozenset({errno.ENOBUFS, errno.EAGAIN})
 
 
@@ -71,24 +76,54 @@ def bus_factory(endpoint: CanEndpoint, receive_ids: Iterable[int] = ()) -> BusFa
 
 
 class _ReportingNotifier(can.Notifier):
+    """Reports receive errors (above), and reads every waiting frame per wake-up.
+
+    python-can reads one frame per readiness callback, that is one per event-loop turn:
+    a loop slowed below the bus's frame rate (a starved CPU, a long callback elsewhere)
+    then falls behind for good, the kernel's receive buffer fills (278 frames with the
+    default 212 KB, measured on vcan) and overflows, and the client sees counter jumps
+    and exhausts its error budget: a link fault made by our own reading. Up to
+    ``MAX_FRAMES_PER_WAKE`` per turn keeps up with any bus this side of a flood.
+    """
+
     def _on_message_available(self, bus: can.BusABC) -> None:
         try:
-            super()._on_message_available(bus)
+            for _ in range(MAX_FRAMES_PER_WAKE):
+                message = bus.recv(0)
+                if message is None:
+                    return
+                self._on_message_received(message)
         except Exception as exc:
             self.exception = exc
             self._on_error(exc)
 
 
-class _LinkReader(can.AsyncBufferedReader):
-    """The reader remembers the first receive error so the owner can react to it."""
+class _LinkReader(can.Listener):
+    """Received frames in order, and the first receive error, for one awaiting task.
+
+    Not ``can.AsyncBufferedReader``: its ``asyncio.Queue`` under ``asyncio.timeout`` costs
+    four loop lookups (each a ``getpid()`` on Python 3.11) per frame awaited, and the
+    client awaits about a hundred frames a second (see drivers/wakeup.py). The notifier
+    calls this on the loop's thread (from its receive thread via ``call_soon_threadsafe``
+    on the virtual bus), so the deque needs no lock.
+    """
 
     def __init__(self) -> None:
-        super().__init__()
+        self.messages: deque[can.Message] = deque()
         self.error: Exception | None = None
+        self.arrived = Wakeup()
+
+    def on_message_received(self, msg: can.Message) -> None:
+        self.messages.append(msg)
+        self.arrived.notify()
 
     def on_error(self, exc: Exception) -> None:
         if self.error is None:
             self.error = exc
+        self.arrived.notify()  # the owner's check() sees it now, not after its timeout
+
+    def stop(self) -> None:
+        pass
 
 
 def is_drop(exc: Exception) -> bool:
@@ -129,24 +164,19 @@ class BusLink:
 
     def poll(self) -> can.Message | None:
         """The next received message if one is waiting, without awaiting."""
-        buffer = self.reader.buffer
-        if buffer.empty():
+        messages = self.reader.messages
+        if not messages:
             return None
         self.counts.received += 1
-        return buffer.get_nowait()
+        return messages.popleft()
 
     async def next_message(self, timeout_s: float) -> can.Message | None:
-        """The next received message, or None after ``timeout_s``."""
+        """The next received message, or None after ``timeout_s`` (or a receive error)."""
         message = self.poll()
-        if message is not None or timeout_s <= 0:
+        if message is not None or timeout_s <= 0 or self.reader.error is not None:
             return message
-        try:
-            async with asyncio.timeout(timeout_s):
-                message = await self.reader.buffer.get()
-        except TimeoutError:
-            return None
-        self.counts.received += 1
-        return message
+        await self.reader.arrived.wait(timeout_s)
+        return self.poll()
 
     def send(self, arbitration_id: int, data: bytes, *, is_error_frame: bool = False) -> bool:
         """Send one frame now: True if sent, False if dropped for want of buffer space.
