@@ -29,6 +29,7 @@ from drivers.actuators.twin_set import ActuatorTwins
 from drivers.lms111 import Dialect
 from drivers.lms111.mounted import mount_pose
 from drivers.lms111.twin import Lms111Twin
+from drivers.pc104 import protocol
 from drivers.pc104.link import BusFactory, bus_factory
 from drivers.pc104.slcan import SlcanAdapterBus
 from drivers.pc104.twin import Pc104Twin
@@ -94,7 +95,7 @@ def build_simulator(
 
             open_bus: BusFactory = open_adapter
         else:
-            open_bus = bus_factory(can)
+            open_bus = bus_factory(can, protocol.HL_IDS)  # what a PC104 listens to
         pc104 = Pc104Twin(open_bus, world, step_world=False)
         simulator.pc104_twin = pc104
 
