@@ -61,6 +61,10 @@ from drivers.pc104.messages import MotionCommand, MotionPattern
 
 RATES_HZ = (50.0, 100.0)
 TRIALS = 30
+# A loaded 500 kbit/s bus (about a quarter of its capacity). The virtual bus lives in
+# this process, so every filler frame is Python work under the daemon's GIL: 4,000
+# frames/s (what earlier runs offered) kept a 2-core VM's loop 95 % busy on its own.
+BUS_LOAD_FPS = 1000
 WAIT_S = 5.0  # for any one step of a trial: the daemon answers in milliseconds
 TAP_PCT, TAP_S = 40.0, 0.15
 OVERRIDE_INDEX = BUTTON_ORDER.index(Buttons.MANUAL_OVERRIDE)
@@ -231,7 +235,9 @@ class Bench:
                 state = self.core.state
                 raise RuntimeError(
                     f"no {what} within {timeout_s} s: mode {state.mode}, "
-                    f"faults {[f.reason for f in state.faults]}, refusal {self.core.last_refusal}"
+                    f"faults {[f.reason for f in state.faults]}, "
+                    f"active {sorted(self.core.faults.active_faults)}, "
+                    f"refusal {self.core.last_refusal}"
                 )
             await asyncio.sleep(0.002)
 
@@ -437,7 +443,9 @@ def bench_config(rate_hz: float, channel: str) -> VehicleConfig:
     )
 
 
-async def bench_rate(rate_hz: float, seconds: float, trials: int) -> list[str]:
+async def bench_rate(
+    rate_hz: float, seconds: float, trials: int, bus_load_fps: int = BUS_LOAD_FPS
+) -> list[str]:
     channel = f"bench-control-{uuid.uuid4().hex[:8]}"
     period_ms = 1e3 / rate_hz
     with tempfile.TemporaryDirectory(prefix="dbw-bench-") as directory:
@@ -446,7 +454,9 @@ async def bench_rate(rate_hz: float, seconds: float, trials: int) -> list[str]:
         undo: list[Callable[[], None]] = []
         try:
             await bench.until("READY", lambda: bench.core.state.mode is Mode.READY, 60.0)
-            generator = LoadGenerator(channel, with_status=False)  # filler ids only
+            # Filler ids only. In this process, beside every twin: each frame is Python
+            # work for the generator and every receiving node, all under one GIL.
+            generator = LoadGenerator(channel, with_status=False, total_fps=bus_load_fps)
             generator.start()
             undo.append(lambda: _stop(generator))
             wire = WireListener(channel, bench.logs["pc104"])
@@ -495,12 +505,24 @@ def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(prog="python -m benchmarks.bench_control")
     parser.add_argument("--seconds", type=float, default=20.0, help="jitter window per rate")
     parser.add_argument("--trials", type=int, default=TRIALS, help="repetitions per latency")
+    parser.add_argument(
+        "--bus-load-fps",
+        type=int,
+        default=BUS_LOAD_FPS,
+        help=f"filler frames/s on the virtual CAN bus (default {BUS_LOAD_FPS})",
+    )
+    parser.add_argument(
+        "--log-file", help="the daemon's log (JSON, info and up) goes here; default: none"
+    )
     args = parser.parse_args([] if argv is None else argv)  # benchmarks.run passes none
-    configure_logging("critical", stream=open(os.devnull, "w"), json=True)  # noqa: SIM115
+    if args.log_file:
+        configure_logging("info", stream=open(args.log_file, "w"), json=True)  # noqa: SIM115
+    else:
+        configure_logging("critical", stream=open(os.devnull, "w"), json=True)  # noqa: SIM115
     for line in machine_header():
         print(line)
     for rate_hz in RATES_HZ:
-        for line in asyncio.run(bench_rate(rate_hz, args.seconds, args.trials)):
+        for line in asyncio.run(bench_rate(rate_hz, args.seconds, args.trials, args.bus_load_fps)):
             print(line)
 
 

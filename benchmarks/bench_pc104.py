@@ -44,18 +44,19 @@ def _frame(arbitration_id: int, data: bytes) -> can.Message:
 
 
 class LoadGenerator(threading.Thread):
-    """Sends status at 50 Hz and filler traffic so the bus carries ~TOTAL_FPS frames/s."""
+    """Sends status at 50 Hz and filler traffic so the bus carries ~``total_fps`` frames/s."""
 
-    def __init__(self, channel: str, with_status: bool = True) -> None:
+    def __init__(self, channel: str, with_status: bool = True, total_fps: int = TOTAL_FPS) -> None:
         super().__init__(daemon=True)
         self.bus = can.Bus(interface="virtual", channel=channel)
         self.with_status = with_status
+        self.total_fps = total_fps
         self.stop_event = threading.Event()
         self.sent = self.status_sent = 0
 
     def run(self) -> None:
         rng = random.Random(1)
-        per_burst = round(TOTAL_FPS * BURST_S)
+        per_burst = max(round(self.total_fps * BURST_S), 1)
         next_s = next_status_s = time.monotonic()
         counter = 0
         while not self.stop_event.is_set():
