@@ -538,7 +538,13 @@ async def test_link_errors_beyond_the_budget_fault_but_a_few_bad_frames_do_not()
             await wait_until(
                 sim, lambda: "pc104_link_errors" in sim.fault_keys(), 2.0, "pc104_link_errors"
             )
-            assert sim.steering_mode() is not SteeringMode.POSITION
+            # The safe command leaves in the faulting cycle; the twin reads it a moment later.
+            await wait_until(
+                sim,
+                lambda: sim.steering_mode() is not SteeringMode.POSITION,
+                0.5,
+                "steering handed back",
+            )
         finally:
             sim.pc104.faults.bad_crc = False
         await recover_to_ready(sim)
