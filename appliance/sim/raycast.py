@@ -266,6 +266,43 @@ def _nearest_circle_hits(
         _take_nearest(t, invalid, b, shape_ids, ranges, index)
 
 
+def inside_any_circle(x_m: float, y_m: float, circles: NDArray[np.float64] | None) -> bool:
+    """Whether the point is inside (or on) a circle: a scanner there is blinded."""
+    circs = _as_rows(circles, 3, "circles")
+    if not circs.shape[0]:
+        return False
+    mx = x_m - circs[:, 0]
+    my = y_m - circs[:, 1]
+    return bool(np.any(mx * mx + my * my - circs[:, 2] * circs[:, 2] <= 0.0))
+
+
+def nearer_of(first: RayHits, second: RayHits, second_offset: int) -> RayHits:
+    """Per beam the nearer of two casts of one origin and beam set, as one cast of both
+    shape sets would give it: ``second``'s indices shifted by ``second_offset`` (the
+    count of ``first``'s shapes), and ties to ``first``, whose shapes come first."""
+    a, b = first.ranges_m, second.ranges_m
+    take = (b > 0.0) & ((a == 0.0) | (b < a))
+    return RayHits(
+        np.where(take, b, a),
+        np.where(take, second.hit_index + second_offset, first.hit_index),
+    )
+
+
+def remission_of(
+    hits: RayHits,
+    n_segments: int,
+    n_circles: int,
+    segment_remission: NDArray[np.float64] | None = None,
+    circle_remission: NDArray[np.float64] | None = None,
+) -> NDArray[np.float64]:
+    """The remission of what each beam hit (0 = nothing), shapes as in ``cast_rays``."""
+    seg_rem = _remission(segment_remission, n_segments, "segment_remission")
+    circ_rem = _remission(circle_remission, n_circles, "circle_remission")
+    table = np.concatenate([seg_rem, circ_rem, [0.0]])  # index -1 picks the trailing 0
+    result: NDArray[np.float64] = table[hits.hit_index]
+    return result
+
+
 def cast_rays(
     origin_x_m: float,
     origin_y_m: float,
@@ -284,10 +321,8 @@ def cast_rays(
     hits = nearest_hits(origin_x_m, origin_y_m, angles_rad, segments, circles, max_range_m)
     n_segments = 0 if segments is None else int(np.asarray(segments).reshape(-1, 4).shape[0])
     n_circles = 0 if circles is None else int(np.asarray(circles).reshape(-1, 3).shape[0])
-    seg_rem = _remission(segment_remission, n_segments, "segment_remission")
-    circ_rem = _remission(circle_remission, n_circles, "circle_remission")
-    table = np.concatenate([seg_rem, circ_rem, [0.0]])  # index -1 picks the trailing 0
-    return hits.ranges_m, table[hits.hit_index]
+    remission = remission_of(hits, n_segments, n_circles, segment_remission, circle_remission)
+    return hits.ranges_m, remission
 
 
 def _remission(values: NDArray[np.float64] | None, count: int, what: str) -> NDArray[np.float64]:

@@ -20,12 +20,21 @@ from __future__ import annotations
 
 import functools
 import math
+from collections.abc import Callable
 
 import numpy as np
 from numpy.typing import NDArray
 
-from appliance.sim.raycast import cast_rays
-from appliance.sim.site import Pose2D, Site
+from appliance.sim.raycast import (
+    NO_HIT,
+    RayHits,
+    cast_rays,
+    inside_any_circle,
+    nearer_of,
+    nearest_hits,
+    remission_of,
+)
+from appliance.sim.site import Pose2D, ShapeArrays, Site
 
 LMS111_START_ANGLE_RAD = math.radians(-45.0)
 LMS111_STOP_ANGLE_RAD = math.radians(225.0)
@@ -71,6 +80,78 @@ def scanner_pose(
     return Pose2D(*vehicle_pose).compose(Pose2D(*mount))
 
 
+class RayCache:
+    """The static site's hits of the last scan, for a scanner that has not moved.
+
+    Why: a vehicle at rest (READY, e-stop, a fault) sees the same walls and posts scan
+    after scan, and casting 541-1081 rays against them is most of the simulated
+    vehicle's CPU. Only the static shapes are kept (keyed on the exact scanner pose and
+    beam layout): walkers are cast for every scan and the nearer hit taken per beam,
+    and noise is drawn for every scan as before, so a scan with the cache equals one
+    without (to the last bits of floating point, which a differently sized product may
+    round differently).
+    """
+
+    def __init__(self) -> None:
+        self.reset()
+
+    def reset(self) -> None:
+        self._key: tuple[float, ...] | None = None
+        self._shapes: object = None  # the static shapes the hits are of (held, not copied)
+        self._hits: RayHits | None = None
+        self.hits = 0
+        self.misses = 0
+
+    def static_hits(
+        self, shapes: object, key: tuple[float, ...], cast: Callable[[], RayHits]
+    ) -> RayHits:
+        if self._hits is not None and shapes is self._shapes and key == self._key:
+            self.hits += 1
+            return self._hits
+        self.misses += 1
+        hits = cast()
+        for array in hits:
+            array.flags.writeable = False  # shared by every scan that hits
+        self._key, self._shapes, self._hits = key, shapes, hits
+        return hits
+
+
+def _cast_with_cache(
+    cache: RayCache,
+    site: Site,
+    shapes: ShapeArrays,
+    pose: Pose2D,
+    world_angles: Callable[[], NDArray[np.float64]],
+    layout: tuple[float, float, float],
+    max_range_m: float,
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """``cast_rays`` over ``shapes`` with the static ones from ``cache``; ``world_angles``
+    is only called (and should be cached by the caller) when something must be cast."""
+    static = site.static_shapes()
+    n_static = static.segments.shape[0] + static.circles.shape[0]
+    movers = shapes.circles[static.circles.shape[0] :]
+    key = (pose.x_m, pose.y_m, pose.yaw_rad, *layout, max_range_m)
+    if inside_any_circle(pose.x_m, pose.y_m, movers):
+        beams = len(world_angles())  # blinded by a walker: no echo at all
+        hits = RayHits(np.zeros(beams), np.full(beams, NO_HIT, dtype=np.int64))
+    else:
+        hits = cache.static_hits(
+            static,
+            key,
+            lambda: nearest_hits(
+                pose.x_m, pose.y_m, world_angles(), static.segments, static.circles, max_range_m
+            ),
+        )
+        if movers.shape[0] and not inside_any_circle(pose.x_m, pose.y_m, static.circles):
+            moving = nearest_hits(pose.x_m, pose.y_m, world_angles(), None, movers, max_range_m)
+            hits = nearer_of(hits, moving, n_static)
+    n_segments, n_circles = shapes.segments.shape[0], shapes.circles.shape[0]
+    remission = remission_of(
+        hits, n_segments, n_circles, shapes.segment_remission, shapes.circle_remission
+    )
+    return hits.ranges_m, remission
+
+
 def render_scan(
     site: Site,
     t_s: float,
@@ -84,6 +165,7 @@ def render_scan(
     max_range_m: float = LMS111_MAX_RANGE_M,
     noise_sigma_m: float = LMS111_NOISE_SIGMA_M,
     range_bias_m: float = 0.0,
+    cache: RayCache | None = None,
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """One scan: ranges in metres (0 = no echo) and the remission of what each beam hit.
 
@@ -91,21 +173,33 @@ def render_scan(
     scanner's (x_m, y_m, yaw_rad) in the vehicle frame. Beams are in device order
     (see ``beam_angles_rad``). Noisy ranges are clipped to [0, max_range_m];
     ``noise_sigma_m=0`` gives exact geometry plus the bias, and leaves ``rng`` untouched.
+    ``cache`` (one per scanner) skips the ray casting while nothing moved; the result is
+    the same.
     """
     pose = scanner_pose(vehicle_pose, mount)
-    device_angles = _fixed_beam_angles_rad(start_angle_rad, stop_angle_rad, step_rad)
-    world_angles = device_angles + (pose.yaw_rad - DEVICE_FORWARD_RAD)
     shapes = site.shapes_at(t_s)
-    ranges, remission = cast_rays(
-        pose.x_m,
-        pose.y_m,
-        world_angles,
-        shapes.segments,
-        shapes.circles,
-        max_range_m,
-        shapes.segment_remission,
-        shapes.circle_remission,
-    )
+
+    def world_angles() -> NDArray[np.float64]:
+        device_angles = _fixed_beam_angles_rad(start_angle_rad, stop_angle_rad, step_rad)
+        angles: NDArray[np.float64] = device_angles + (pose.yaw_rad - DEVICE_FORWARD_RAD)
+        return angles
+
+    if cache is not None:
+        layout = (start_angle_rad, stop_angle_rad, step_rad)
+        ranges, remission = _cast_with_cache(
+            cache, site, shapes, pose, functools.cache(world_angles), layout, max_range_m
+        )
+    else:
+        ranges, remission = cast_rays(
+            pose.x_m,
+            pose.y_m,
+            world_angles(),
+            shapes.segments,
+            shapes.circles,
+            max_range_m,
+            shapes.segment_remission,
+            shapes.circle_remission,
+        )
     if noise_sigma_m > 0.0:
         error_m = rng.normal(range_bias_m, noise_sigma_m, size=ranges.shape)
     else:

@@ -191,6 +191,10 @@ class Site:
             tuple(s.name for s in self.segments) + tuple(c.name for c in self.circles),
         )
 
+    def static_shapes(self) -> ShapeArrays:
+        """The shapes that never move (the same object on every call)."""
+        return self._static
+
     def shapes_at(self, t_s: float) -> ShapeArrays:
         """Static shapes plus every walker where it is at ``t_s``."""
         static = self._static

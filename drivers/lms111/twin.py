@@ -38,7 +38,12 @@ from typing import Any, Final
 import numpy as np
 import numpy.typing as npt
 
-from appliance.sim.scanner_model import LMS111_MAX_RANGE_M, LMS111_NOISE_SIGMA_M, render_scan
+from appliance.sim.scanner_model import (
+    LMS111_MAX_RANGE_M,
+    LMS111_NOISE_SIGMA_M,
+    RayCache,
+    render_scan,
+)
 from appliance.sim.site import Pose2D, Site
 from drivers.lms111.cola import CommandType, Reply
 from drivers.lms111.connection import Lms111Connection
@@ -136,6 +141,7 @@ class Lms111Twin:
         self._clock = clock
         self._initial_dialect = dialect
         self._rng = np.random.default_rng(seed)
+        self._ray_cache = RayCache()  # the vehicle at rest sees the same site
         self._fault_rng = random.Random(seed)
         self.device = DeviceModel(
             self._render,
@@ -362,6 +368,7 @@ class Lms111Twin:
             max_range_m=self.max_range_m,
             noise_sigma_m=self.noise_sigma_m,
             range_bias_m=self.range_bias_m,
+            cache=self._ray_cache,
         )
         count = len(angles_rad)  # float rounding must never change the beam count
         if len(ranges) != count:

@@ -5,10 +5,13 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from appliance.sim import load_site, render_scan
 from appliance.sim.raycast import cast_rays
-from appliance.sim.scanner_model import beam_angles_rad
+from appliance.sim.scanner_model import RayCache, beam_angles_rad
+from appliance.sim.site import Site
 
 VEHICLE = (-10.0, 0.3, math.radians(2.0))
 MOUNT = (2.6, 1.1, math.radians(45.0))
@@ -34,3 +37,70 @@ def test_scans_of_other_beam_counts_in_between_change_nothing() -> None:
     assert len(first[0]) == 541
     for a, b in zip(first, again, strict=True):
         assert a.tobytes() == b.tobytes() and a.flags.writeable
+
+
+# ---- RayCache: the static site's hits kept while the scanner stands still
+
+
+def _pair(site: Site, t_s: float, vehicle: tuple[float, float, float], cache: RayCache) -> None:
+    """One scan with the cache and one without, from the same random stream: equal."""
+    with_cache = render_scan(site, t_s, vehicle, MOUNT, rng=np.random.default_rng(3), cache=cache)
+    without = render_scan(site, t_s, vehicle, MOUNT, rng=np.random.default_rng(3))
+    np.testing.assert_allclose(with_cache[0], without[0], rtol=0.0, atol=1e-9)
+    np.testing.assert_array_equal(with_cache[0] > 0.0, without[0] > 0.0)
+    np.testing.assert_array_equal(with_cache[1], without[1])
+
+
+def test_a_scanner_at_rest_casts_the_static_site_once_and_the_walker_every_scan() -> None:
+    site = load_site("launcher")
+    assert site.movers  # the default site has a walking person: the cache must cope
+    cache = RayCache()
+    for t_s in (0.0, 0.5, 1.0, 1.5, 2.0):
+        _pair(site, t_s, VEHICLE, cache)
+    assert (cache.misses, cache.hits) == (1, 4)
+    person = site.movers[0]
+    assert person.position_at(0.0) != person.position_at(2.0)
+
+
+def test_a_moving_scanner_misses_the_cache_and_still_matches() -> None:
+    site = load_site("launcher")
+    cache = RayCache()
+    for step in range(6):
+        _pair(site, 0.1 * step, (VEHICLE[0] + 0.05 * step, VEHICLE[1], VEHICLE[2]), cache)
+    assert (cache.misses, cache.hits) == (6, 0)
+
+
+def test_blinded_inside_the_walker_or_a_post_with_and_without_cache() -> None:
+    site = load_site("launcher")
+    cache = RayCache()
+    x_m, y_m = site.movers[0].position_at(1.0)
+    inside_walker = (x_m, y_m, 0.0)
+    ranges, _ = render_scan(
+        site, 1.0, inside_walker, (0.0, 0.0, 0.0), rng=np.random.default_rng(0), cache=cache
+    )
+    assert not ranges.any()
+    post = site.circles[0]
+    inside_post = (post.cx_m, post.cy_m, 0.0)
+    for t_s in (0.0, 1.0):
+        ranges, _ = render_scan(
+            site, t_s, inside_post, (0.0, 0.0, 0.0), rng=np.random.default_rng(0), cache=cache
+        )
+        assert not ranges.any()
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    x_m=st.floats(-16.0, 2.0),
+    y_m=st.floats(-4.0, 4.0),
+    yaw_deg=st.floats(-180.0, 180.0),
+    t_s=st.floats(0.0, 30.0),
+)
+def test_cache_equals_a_full_cast_anywhere(
+    x_m: float, y_m: float, yaw_deg: float, t_s: float
+) -> None:
+    site = load_site("launcher")
+    cache = RayCache()
+    vehicle = (x_m, y_m, math.radians(yaw_deg))
+    _pair(site, t_s, vehicle, cache)
+    _pair(site, t_s + 0.25, vehicle, cache)  # the second from the cache
+    assert cache.hits == 1
