@@ -19,6 +19,7 @@ from pathlib import Path
 from appliance.config import VehicleConfig, load_config
 from appliance.daemon import Daemon
 from appliance.modes import Mode
+from appliance.sim_process import SIM_NICE_INCREMENT
 
 
 def free_port() -> int:
@@ -67,6 +68,10 @@ async def test_daemon_engages_on_the_child_process_and_leaves_no_child_behind() 
         await wait_until(lambda: daemon.core.state.mode is Mode.READY, 30.0)
         pid = io.sim_process.pid
         assert pid is not None and alive(pid)
+        # The simulated world yields the CPU to the daemon (see SIM_NICE_INCREMENT).
+        assert os.getpriority(os.PRIO_PROCESS, pid) == min(
+            os.getpriority(os.PRIO_PROCESS, 0) + SIM_NICE_INCREMENT, 19
+        )
         health = io.pc104.health()
         assert health.connected and not health.stale  # the PC104 over SLCAN
         ages = io.topics.ages_s(asyncio.get_running_loop().time())
