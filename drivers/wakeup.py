@@ -2,10 +2,12 @@
 
 Why not ``async with asyncio.timeout(t): await event.wait()``: on Python 3.11 that costs
 four ``get_running_loop()`` calls (each a ``getpid()`` system call), two clock reads and
-the Timeout's cancel/uncancel bookkeeping, and the drivers' serve loops wait this way
-about 400 times a second (four actuator boards at 50 Hz, the PC104 per frame). On the
-vehicle's PC that is a few per cent of a core; inside user-mode Linux, where the HIL tests
-run and every system call is trapped (30 us measured), it was a fifth of the one CPU.
+the Timeout's cancel/uncancel bookkeeping, and the drivers' serve loops waited this way
+about 350 times a second (four actuator boards at 50 Hz, the PC104 per frame; counted
+with tools/count_calls.py): some 1,400 getpid() a second. On a PC that is cheap; inside
+user-mode Linux, where the HIL tests run and every system call is trapped (about 30 us
+measured), it is some 40 ms of every second of the guest's one CPU, on top of the
+clock reads.
 A :class:`Wakeup` keeps the loop it was made on, so a wait is one future and one
 ``call_later``: no lookups, one clock read (``call_later``'s own).
 
