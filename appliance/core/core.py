@@ -456,9 +456,11 @@ class ControlCore:
         if self.state.mode is not Mode.ESTOP:
             return False, f"no e-stop to reset (mode {self.state.mode})"
         m = self._measured
-        still = m.estop_reasons if m is not None else ()
-        if still:
-            return False, "e-stop still active: " + "; ".join(still)
+        if m is None or not m.panel_fresh:
+            # Deny by default: with the panel silent the mushroom may still be down.
+            return False, "e-stop release not seen: the operator panel is silent"
+        if m.estop_reasons:
+            return False, "e-stop still active: " + "; ".join(m.estop_reasons)
         self._bench_estop = False
         self._apply(EStopReset(), now_s)
         self._note("estop_reset", by=by, to_mode=str(self.state.mode))

@@ -38,6 +38,9 @@ class Measurements:
     estop_reasons: tuple[str, ...]
     pc104_source: ControlSource | None
     pc104_ready: bool
+    # The panel is fresh: its e-stop button's state is seen, not assumed. An e-stop is
+    # reset only on a release seen; a silent panel's last word may be the mushroom down.
+    panel_fresh: bool = False
 
 
 def measure(
@@ -65,6 +68,7 @@ def measure(
         pc104_source=None if status is None else status.control_source,
         # A PC104 that reports it does not hear our commands is not ready to follow them.
         pc104_ready=status is not None and status.ready and not status.faults.command_timeout,
+        panel_fresh="board.panel" in fresh,
     )
 
 
