@@ -39,9 +39,7 @@ class Wakeup:
 
     def set(self) -> None:
         self._is_set = True
-        waiter = self._waiter
-        if waiter is not None and not waiter.done():
-            waiter.set_result(None)
+        self.notify()
 
     def clear(self) -> None:
         self._is_set = False
