@@ -214,3 +214,25 @@ def test_an_unplugged_adapter_is_a_lost_link_on_the_host(pair) -> None:  # type:
     with pytest.raises(can.CanOperationError) as raised:
         host.recv(0.5)  # the hang-up is readable at once: recv raises, it does not time out
     assert raised.value.error_code == errno.EIO
+
+
+def test_a_poll_with_nothing_waiting_returns_at_once_whatever_the_port_timeout(
+    pair,  # type: ignore[no-untyped-def]
+) -> None:
+    """recv(0) is the notifier's drain on the event loop: it must never wait for bytes.
+
+    pyserial's read() waits for the port's read timeout (1 ms from python-can, measured
+    1.1 ms on every drain); with the timeout set to 5 s here, a read that waits is told
+    from one that does not by seconds, not by a tight bound.
+    """
+    host, adapter = pair
+    opened_by = time.monotonic() + 2.0
+    while not adapter.is_open and time.monotonic() < opened_by:
+        adapter.recv(0.05)  # the adapter reads the host's "open" command
+    host.serialPortOrig.timeout = 5.0
+    adapter.send(can.Message(arbitration_id=0x201, data=b"\x01", is_extended_id=False))
+    assert recv_until(host).arbitration_id == 0x201
+    started = time.monotonic()
+    for _ in range(3):
+        assert host.recv(0) is None
+    assert time.monotonic() - started < 2.0
