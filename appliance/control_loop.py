@@ -16,22 +16,14 @@ and reported in the ``heartbeats`` log and in ``dbw status``.
 from __future__ import annotations
 
 import time
-from collections import deque
 from collections.abc import Callable
 from typing import Any, Protocol
-
-import numpy as np
-
-# np.percentile imports numpy.ma lazily on its first call: a 15-70 ms stall of the event
-# loop, once, after the daemon is READY (enough to make the steering pot stale). Import it
-# now, at start-up.
-import numpy.ma
 
 from appliance.core.core import ControlCore, CoreOutput
 from appliance.core.inputs import ControlInputs, LinkCounts
 from appliance.logs import get_logger
 from appliance.supervisor import ServiceContext
-from appliance.timing import FixedRateTicker
+from appliance.timing import FixedRateTicker, SampleWindow
 from appliance.topics import Sample, TopicRegistry
 
 log = get_logger("control")
@@ -124,15 +116,13 @@ class StepTimes:
     """The core's compute time per cycle, over a bounded window."""
 
     def __init__(self, window: int = 5000) -> None:
-        self._s: deque[float] = deque(maxlen=window)
+        self._s = SampleWindow(window)
 
     def update(self, seconds: float) -> None:
         self._s.append(seconds)
 
     def p99_ms(self) -> float:
-        if not self._s:
-            return float("nan")
-        return float(np.percentile(np.asarray(self._s), 99) * 1e3)
+        return self._s.percentiles([99])[0] * 1e3
 
 
 class ControlLoop:
