@@ -115,6 +115,7 @@ class Daemon:
             clock=clock,
         )
         self.control.sinks.append(VehicleCommandSink(self.io, self.control.lease_s))
+        self.io.work_slot.attach(self.control.ticker)
         watch = OperatorWatch(
             self.control.ticker.wake_early, config.safety.pedal_override_margin_pct
         )
@@ -341,6 +342,7 @@ class Daemon:
             self.notifier.status(self.status_line())
             if now_s - last_report_s >= report_period_s:
                 last_report_s = now_s
+                await self.io.work_slot.clear()  # a heartbeat can wait for the cycle due
                 jitter = self.control.ticker.stats.report()
                 lag = self.loop_monitor.take_window()
                 self.last_loop_lag = lag

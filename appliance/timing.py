@@ -5,6 +5,10 @@ one schedules against absolute deadlines (``start + n * period``) and, when it f
 behind, skips the missed ticks instead of bursting to catch up, counting each as an
 overrun. Jitter (actual minus scheduled wake-up) is kept in a bounded window so its
 percentiles can be reported without the memory growing over a day's run.
+
+Two things keep the wake-up itself on time. The ticker sleeps on a timerfd armed at the
+deadline (appliance/timerfd.py), not on asyncio's millisecond timer. And deferrable work
+that would otherwise run into the deadline waits for the cycle (:class:`ControlSlot`).
 """
 
 from __future__ import annotations

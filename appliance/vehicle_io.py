@@ -30,6 +30,7 @@ from appliance.sim.vehicle import MotionPattern
 from appliance.sim_process import SimProcess
 from appliance.simulator import Simulator, build_simulator, lms111_dialect
 from appliance.supervisor import PermanentServiceError, ServiceSpec, beating_service
+from appliance.timing import ControlSlot
 from appliance.topics import Topic, TopicRegistry
 from drivers.actuators.boards import BoardClients, make_board_clients
 from drivers.actuators.client import ActuatorClient
@@ -50,6 +51,10 @@ from safety.watchdog import RestartPolicy
 log = get_logger("vehicle_io")
 
 DRIVER_HEARTBEAT_DEADLINE_S = 1.0
+# Work that starts this close to a control deadline waits for that cycle (ControlSlot):
+# a CoLa-A scan's decoding, the longest such work today, is 0.55 ms median and 0.7 ms p99
+# (benchmarks/bench_lms111_decode.py, 1,081 points with RSSI), with room for a slow turn.
+BULK_WORK_BUDGET_S = 0.0015
 
 
 @dataclass
@@ -64,6 +69,8 @@ class VehicleIO:
     boards: BoardClients | None = None
     pc104: Pc104Client | None = None
     scanners: dict[str, Lms111Client] = field(default_factory=dict)
+    # Deferrable work waits here for the control cycle due (the daemon attaches its ticker).
+    work_slot: ControlSlot = field(default_factory=lambda: ControlSlot(BULK_WORK_BUDGET_S))
     _closers: list[Callable[[], None]] = field(default_factory=list)
 
     def close(self) -> None:
@@ -204,6 +211,7 @@ def _build_scanners(config: VehicleConfig, io: VehicleIO, policy: RestartPolicy)
             dialect=lms111_dialect(endpoint.cola_dialect),
             read_deadline_periods=5,
             beat_while_waiting=True,
+            before_decode=io.work_slot.clear,
         )
         io.scanners[side] = client
         io.services.append(

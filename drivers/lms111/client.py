@@ -49,6 +49,7 @@ from drivers.lms111.mounted import MountedScan, mount_pose
 from drivers.lms111.replies import DeviceStatus, LmsState, ScanConfig
 from drivers.lms111.scan import Scan
 from drivers.lms111.session import (
+    Gate,
     Lms111ConfigError,
     Lms111LinkError,
     Lms111LoginError,
@@ -123,6 +124,7 @@ class Lms111Client:
         ready_poll_s: float = 1.0,
         episode_quiet_s: float = 5.0,
         beat_while_waiting: bool = False,
+        before_decode: Gate | None = None,
     ) -> None:
         if read_deadline_periods <= 0 or backoff_initial_s <= 0:
             raise ValueError("read_deadline_periods and backoff_initial_s must be positive")
@@ -131,6 +133,7 @@ class Lms111Client:
         self.mount = mount_pose(mount)
         self.topic = topic
         self.dialect = dialect
+        self.before_decode = before_decode
         self.settings = StreamSettings(
             endpoint.scan_frequency_hz,
             endpoint.angular_resolution_deg,
@@ -254,6 +257,7 @@ class Lms111Client:
             on_protocol_error=self._on_protocol_error,
         )
         self._session = session
+        session.before_decode = self.before_decode
         self._connected = True
         self._garbage_seen = 0
         self._last_counter = None  # counters restart meaning with every session

@@ -24,7 +24,7 @@ import contextlib
 import socket
 import time
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Awaitable, Callable
 from typing import Final
 
 from drivers.lms111.cola import Command, CommandType, ErrorReply, Event, Reply, ScanTelegram
@@ -45,6 +45,9 @@ _ANSWER_KIND: Final = {
 
 Clock = Callable[[], float]
 BytesHook = Callable[[bytes, float], None]
+# Awaited before received bytes are framed and decoded: the runtime's way to keep a scan's
+# decoding out of the moments before a control deadline (appliance.timing.ControlSlot).
+Gate = Callable[[], Awaitable[None]]
 ErrorHook = Callable[[ProtocolError], None]
 
 
@@ -122,6 +125,7 @@ class Lms111Session:
         self.on_protocol_error = on_protocol_error
         self.queued_scans: deque[Scan] = deque(maxlen=64)
         self.bytes_received = 0
+        self.before_decode: Gate | None = None
 
     @classmethod
     async def connect(
@@ -197,6 +201,8 @@ class Lms111Session:
         self.bytes_received += len(data)
         if self.on_bytes is not None:
             self.on_bytes(data, now_s)
+        if self.before_decode is not None:
+            await self.before_decode()  # the scans keep their receive time, now_s
         self.connection.receive_data(data)
         return self.drain(now_s)
 
