@@ -36,9 +36,38 @@ from appliance.daemon import Daemon
 from appliance.logs import configure_logging
 from appliance.modes import Mode
 from appliance.timing import JitterReport, RateStats
+from benchmarks.late_cycles import LateCycles
 
 WAIT_S = 60.0
+UNIT_FILE = os.path.join(os.path.dirname(__file__), os.pardir, "systemd", "dbw.service")
 CLOCK_TICKS_S = os.sysconf("SC_CLK_TCK")
+
+
+def goal_p99_s(rate_hz: float) -> float:
+    """The issue's jitter goal: p99 <= 2 ms at 50 Hz, <= 3 ms at 100 Hz."""
+    return 0.002 if rate_hz <= 50.0 else 0.003
+
+
+def unit_nice(path: str = UNIT_FILE) -> int:
+    """The niceness the systemd unit runs the daemon at (``Nice=``; 0 without one)."""
+    with open(path, encoding="utf-8") as f:
+        for line in f:
+            key, _, value = line.strip().partition("=")
+            if key == "Nice":
+                return int(value)
+    return 0
+
+
+def run_as_the_unit_does() -> str:
+    """Take the unit's niceness (the simulated vehicle's process then sits its
+    SIM_NICE_INCREMENT below it, as under systemd); say what was done."""
+    wanted = unit_nice()
+    try:
+        os.setpriority(os.PRIO_PROCESS, 0, wanted)
+    except OSError as exc:
+        now = os.getpriority(os.PRIO_PROCESS, 0)
+        return f"nice {now} (the unit's Nice={wanted} was refused: {exc})"
+    return f"nice {wanted}, as systemd/dbw.service runs it"
 
 
 def free_port() -> int:
@@ -92,8 +121,9 @@ class Watch:
 class PhaseRecorder:
     """Every wake-up of the control loop in a phase, beside the daemon's own statistics."""
 
-    def __init__(self) -> None:
-        self.stats = RateStats(window=10_000_000)
+    def __init__(self, late: LateCycles, cycles: int) -> None:
+        self.stats = RateStats(window=cycles)
+        self.late = late
         self.original: Callable[[float, float, int], None] | None = None
 
     def tee(self, update: Callable[[float, float, int], None]) -> Callable[..., None]:
@@ -102,6 +132,7 @@ class PhaseRecorder:
         def both(scheduled_s: float, actual_s: float, missed_ticks: int = 0) -> None:
             update(scheduled_s, actual_s, missed_ticks)
             self.stats.update(scheduled_s, actual_s, missed_ticks)
+            self.late.update(scheduled_s, actual_s)
 
         return both
 
@@ -165,7 +196,8 @@ class Soak:
         # Every cycle of the phase, kept here: the daemon's own window stays its 5,000
         # samples, because its heartbeat takes percentiles of it every second (a window
         # of a whole phase made that a 4-25 ms callback of its own in an earlier run).
-        recorder = PhaseRecorder()
+        late = LateCycles(self.daemon.loop_monitor, threshold_s=goal_p99_s(self.rate_hz))
+        recorder = PhaseRecorder(late, cycles=int(self.rate_hz * seconds * 1.5) + 1000)
         control.ticker.stats.reset()
         control.ticker.stats.update = recorder.tee(control.ticker.stats.update)  # type: ignore[method-assign]
         control.step_times = StepTimes()
@@ -189,6 +221,7 @@ class Soak:
         sim_cpu = 100 * (cpu_s(sim_pid) - sim0) / wall_s if sim_pid else float("nan")
         assert recorder.original is not None
         control.ticker.stats.update = recorder.original  # type: ignore[method-assign,assignment]
+        late.close()
         r = recorder.report()
         now = self.core.state
         faults = sum(self.watch.faults.values())
@@ -207,6 +240,7 @@ class Soak:
             f"    event loop: longest callback {worst_callback[0]:.2f} ms ({worst_callback[1]})",
             f"    CPU: daemon {daemon_cpu:.0f} % of a core, simulated vehicle {sim_cpu:.0f} %"
             + ("; the simulated vehicle was RESTARTED" if restarted else ""),
+            *late.lines(),
         ]
 
 
@@ -243,11 +277,13 @@ def main(argv: list[str] | None = None) -> None:
     # is then on record with its cause, beside the figures on stdout.
     configure_logging(args.log_level, stream=sys.stderr, json=True)
     load = ", ".join(f"{x:.2f}" for x in os.getloadavg())
+    niceness = run_as_the_unit_does()
     print("## soak of the daemon on the built-in simulated vehicle (benchmarks/bench_soak.py)")
     print(
         f"machine: {platform.platform()}, Python {platform.python_version()}, "
         f"os.cpu_count() = {os.cpu_count()}, load average (1, 5, 15 min) = {load}"
     )
+    print(f"daemon: {niceness}")
     print("goals: 0 missed cycles, jitter p99 <= 2 ms at 50 Hz and <= 3 ms at 100 Hz, 0 lease")
     print("expiries, 0 faults; printed, never asserted")
     for rate_hz in args.rate_hz:

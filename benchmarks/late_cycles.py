@@ -1,0 +1,144 @@
+"""Who made a control cycle late: the callbacks, collections and gaps between its deadline
+and its wake-up.
+
+Why: a jitter percentile says *that* the loop woke late, the loop monitor's longest
+callback says who held the loop longest in a second; neither says what delayed the cycles
+that make the tail. This keeps the last few thousand callbacks of the daemon's loop (start,
+end, callback) and the garbage collector's pauses, and for every cycle that woke later
+than a threshold it splits the lateness into what overlapped it:
+
+- each callback that ran inside the window (the control task's own step excluded),
+- each collection (by generation; it runs inside some callback, so it is subtracted there),
+- the rest: time the loop ran no callback at all, so the process was waiting in the
+  selector past its deadline, for the GIL (another thread of the process held it), or for
+  a CPU (the kernel or the hypervisor gave it to someone else).
+
+The cause of a late cycle is the biggest of these parts. Benchmarks only: it wraps the
+loop monitor's ``record`` and costs a clock read and a tuple per callback.
+"""
+
+from __future__ import annotations
+
+import gc
+import statistics
+import time
+from collections import Counter, defaultdict, deque
+from collections.abc import Callable
+from typing import Any
+
+from appliance.loop_monitor import LoopMonitor, callback_name
+
+GAP = "no callback running (selector, GIL or CPU wait)"
+
+
+class _Named:
+    """A handle's callback kept for naming later (naming costs more than the keeping)."""
+
+    __slots__ = ("_callback",)
+
+    def __init__(self, callback: Any) -> None:
+        self._callback = callback
+
+
+class LateCycles:
+    def __init__(
+        self,
+        monitor: LoopMonitor,
+        threshold_s: float,
+        clock: Callable[[], float] = time.perf_counter,
+        keep: int = 4096,
+        own_task: str = "task control",
+    ) -> None:
+        self.threshold_s = threshold_s
+        self._clock = clock
+        self._own = own_task
+        self._callbacks: deque[tuple[float, float, Any]] = deque(maxlen=keep)
+        self._gc: deque[tuple[float, float, int]] = deque(maxlen=256)
+        self._gc_started: tuple[float, int] | None = None
+        self.causes: Counter[str] = Counter()
+        self.parts_ms: defaultdict[str, list[float]] = defaultdict(list)
+        self.late = 0
+        self._monitor = monitor
+        self._record = monitor.record
+        monitor.record = self._recording  # type: ignore[method-assign]
+        gc.callbacks.append(self._on_gc)
+
+    def close(self) -> None:
+        self._monitor.record = self._record  # type: ignore[method-assign]
+        if self._on_gc in gc.callbacks:
+            gc.callbacks.remove(self._on_gc)
+
+    def reset(self) -> None:
+        self.causes.clear()
+        self.parts_ms.clear()
+        self.late = 0
+
+    def _recording(self, duration_s: float, handle: Any) -> None:
+        end_s = self._clock()
+        self._callbacks.append((end_s - duration_s, end_s, handle._callback))
+        self._record(duration_s, handle)
+
+    def _on_gc(self, phase: str, info: dict[str, Any]) -> None:
+        now_s = self._clock()
+        if phase == "start":
+            self._gc_started = (now_s, int(info.get("generation", -1)))
+        elif self._gc_started is not None:
+            started_s, generation = self._gc_started
+            self._gc.append((started_s, now_s, generation))
+            self._gc_started = None
+
+    def update(self, scheduled_s: float, actual_s: float) -> None:
+        """One cycle's deadline and wake-up (the clock must be the monitor's)."""
+        if actual_s - scheduled_s < self.threshold_s:
+            return
+        self.late += 1
+        parts: defaultdict[str, float] = defaultdict(float)
+        busy_s = 0.0
+        # Newest first: callbacks are kept in the order they ended, so the first one that
+        # ended before the deadline ends the search (a full pass was 18 % of a core).
+        for start_s, end_s, callback in reversed(self._callbacks):
+            if end_s <= scheduled_s:
+                break
+            overlap_s = min(end_s, actual_s) - max(start_s, scheduled_s)
+            if overlap_s <= 0:
+                continue
+            name = callback_name(_Named(callback))  # type: ignore[arg-type]
+            if name == self._own:
+                continue
+            parts[name] += overlap_s
+            busy_s += overlap_s
+        collected_s = 0.0
+        for start_s, end_s, generation in self._gc:
+            overlap_s = min(end_s, actual_s) - max(start_s, scheduled_s)
+            if overlap_s > 0:
+                parts[f"gc generation {generation}"] += overlap_s
+                collected_s += overlap_s
+        if collected_s and parts:  # a collection runs inside a callback: not counted twice
+            holder = max(
+                (n for n in parts if not n.startswith("gc ")), key=parts.__getitem__, default=None
+            )
+            if holder is not None:
+                parts[holder] = max(parts[holder] - collected_s, 0.0)
+        parts[GAP] += max(actual_s - scheduled_s - busy_s, 0.0)
+        cause = max(parts, key=parts.__getitem__)
+        self.causes[cause] += 1
+        for name, part_s in parts.items():
+            if part_s > 0:
+                self.parts_ms[name].append(part_s * 1e3)
+
+    def lines(self, top: int = 6) -> list[str]:
+        if not self.late:
+            return [f"    late cycles (> {self.threshold_s * 1e3:g} ms): none"]
+        out = [
+            f"    late cycles (> {self.threshold_s * 1e3:g} ms): {self.late}; cause (the"
+            " biggest part of the lateness): count, and that part's median / max ms"
+        ]
+        for name, count in self.causes.most_common(top):
+            parts = self.parts_ms[name]
+            out.append(
+                f"      {count:5d}  {name}: {statistics.median(parts):.2f} / {max(parts):.2f}"
+            )
+        others = sum(self.causes.values()) - sum(c for _, c in self.causes.most_common(top))
+        if others:
+            out.append(f"      {others:5d}  other causes")
+        return out
