@@ -186,6 +186,12 @@ def _loop_line(doc: dict[str, Any]) -> str:
         value = _finite(loop.get(key))
         if value is not None:
             parts.append(template.format(value))
+    wakes_by = loop.get("wakes_by")
+    if isinstance(wakes_by, str) and parts:
+        parts.append(f"wakes by {_text(wakes_by)}")
+    deferred = _finite(loop.get("work_deferred"))
+    if deferred is not None and parts:
+        parts.append(f"{deferred:.0f} deferred for a cycle")
     return "loop: " + ", ".join(parts) if parts else ""
 
 

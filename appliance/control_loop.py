@@ -182,7 +182,7 @@ class ControlLoop:
             self.cycle(now_s)
             ctx.beat()
 
-    def loop_figures(self) -> dict[str, float | int]:
+    def loop_figures(self) -> dict[str, float | int | str]:
         report = self.ticker.stats.report()
         return {
             "rate_hz": self.rate_hz,
@@ -193,4 +193,7 @@ class ControlLoop:
             "jitter_max_ms": round(report.jitter_max_ms, 3),
             "step_p99_ms": round(self.step_times.p99_ms(), 3),
             "early_wakes": self.ticker.early_wakes,
+            # How the loop wakes: "timerfd" (to the microsecond) or "asyncio timer" (to
+            # the millisecond, rounded up: a system without timerfd, or a fake clock).
+            "wakes_by": "timerfd" if self.ticker.precise else "asyncio timer",
         }

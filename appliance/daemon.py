@@ -427,7 +427,11 @@ class Daemon:
             }
             for name, age in sorted(ages.items())
         }
-        doc["loop"] = self.control.loop_figures()
+        doc["loop"] = {
+            **self.control.loop_figures(),
+            # Scan decodes and heartbeats that waited for a cycle due (ControlSlot).
+            "work_deferred": self.io.work_slot.deferred,
+        }
         lag = self.last_loop_lag or self.loop_monitor.window()
         doc["event_loop"] = {**lag.as_dict(), "since_start": self.loop_monitor.worst()}
         doc["services"] = self._service_summary()

@@ -278,7 +278,8 @@ class ControlSlot:
     deadline, the way a time-triggered schedule reserves its slot.
 
     The wait is bounded: a control loop that is late, stopped or hung (the supervisor's
-    business) holds the work at most one period past the deadline.
+    business) holds the work at most one period past the deadline, and once a deadline is
+    a period past, nothing waits for it at all.
     """
 
     def __init__(self, budget_s: float, clock: Callable[[], float] = time.monotonic) -> None:
@@ -301,8 +302,8 @@ class ControlSlot:
         if deadline_s is None:
             return
         left_s = deadline_s - self._clock()
-        if left_s > self.budget_s:
-            return
+        if left_s > self.budget_s or left_s < -ticker.period_s:
+            return  # clear of the deadline; or a loop a period behind is not ticking now
         self.deferred += 1
         loop = asyncio.get_running_loop()
         after: asyncio.Future[None] = loop.create_future()

@@ -53,7 +53,8 @@ log = get_logger("vehicle_io")
 DRIVER_HEARTBEAT_DEADLINE_S = 1.0
 # Work that starts this close to a control deadline waits for that cycle (ControlSlot):
 # a CoLa-A scan's decoding, the longest such work today, is 0.55 ms median and 0.7 ms p99
-# (benchmarks/bench_lms111_decode.py, 1,081 points with RSSI), with room for a slow turn.
+# (benchmarks/bench_lms111_decode.py, 1,081 points with RSSI), with room for a slow turn;
+# a PC104 burst (three status frames through cantools) is about 0.5 ms.
 BULK_WORK_BUDGET_S = 0.0015
 
 
@@ -178,6 +179,7 @@ class Pc104SafeStop:
 def _build_pc104(config: VehicleConfig, io: VehicleIO, policy: RestartPolicy) -> None:
     """The PC104 link (critical: it is how the vehicle's own controller hears us)."""
     client = Pc104Client(config)
+    client.before_decode = io.work_slot.clear
     io.pc104 = client
     for topic in (
         client.topics.status,

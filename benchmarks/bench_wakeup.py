@@ -18,6 +18,7 @@ import asyncio
 import os
 import platform
 import select
+import sys
 import time
 from collections.abc import Callable
 
@@ -90,7 +91,7 @@ def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(prog="python -m benchmarks.bench_wakeup")
     parser.add_argument("--wakeups", type=int, default=1500)
     parser.add_argument("--rate-hz", type=float, default=50.0)
-    args = parser.parse_args(argv)
+    args = parser.parse_args(argv or [])  # `make bench` calls main() with its own argv
     period_s = 1.0 / args.rate_hz
     load = ", ".join(f"{x:.2f}" for x in os.getloadavg())
     print("## wake-up lateness at a deadline (benchmarks/bench_wakeup.py)")
@@ -111,4 +112,4 @@ def main(argv: list[str] | None = None) -> None:
 
 
 if __name__ == "__main__":
-    main()
+    main(sys.argv[1:])

@@ -7,6 +7,7 @@ import sys
 import time
 
 BENCHMARKS = [
+    "benchmarks.bench_wakeup",
     "benchmarks.bench_supervisor",
     "benchmarks.bench_sim_raycast",
     "benchmarks.bench_sim_twins",

@@ -26,7 +26,7 @@ from __future__ import annotations
 import asyncio
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Awaitable, Callable
 
 import can
 
@@ -82,6 +82,9 @@ class Pc104Client:
             else bus_factory(config.devices.can, protocol.PC104_IDS)
         )
         self._clock = clock
+        # Awaited before a batch of received frames is decoded: the runtime keeps that
+        # work out of the moments before a control deadline (appliance.timing.ControlSlot).
+        self.before_decode: Callable[[], Awaitable[None]] | None = None
         self.monitors: dict[int, ReceiveMonitor] = {}
         for spec in protocol.SPECS_BY_ID.values():
             if spec.frame_id in protocol.PC104_IDS:
@@ -274,9 +277,13 @@ class Pc104Client:
             if not status_monitor.stale(now_s):
                 wake_s = min(wake_s, status_monitor.stale_deadline_s() + 1e-4)
             message = await link.next_message(wake_s - self._clock())
+            arrived_s: float | None = None
+            if message is not None and self.before_decode is not None:
+                arrived_s = self._clock()  # what waits is the decoding, not the stamp
+                await self.before_decode()
             handled = 0
             while message is not None:
-                self._on_message(message, self._clock())
+                self._on_message(message, self._clock() if arrived_s is None else arrived_s)
                 handled += 1
                 message = link.poll() if handled < MAX_FRAMES_PER_TURN else None
 

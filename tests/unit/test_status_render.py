@@ -45,6 +45,8 @@ FULL: dict[str, Any] = {
         "overruns": 1,
         "jitter_p99_ms": 0.8,
         "step_p99_ms": 0.3,
+        "wakes_by": "timerfd",
+        "work_deferred": 12,
     },
     "services": {"control": "running beat 3 ms ago", "lms111_left": "backoff, 2 restart(s)"},
 }
@@ -92,7 +94,10 @@ def test_full_document() -> None:
         "counter_steer 1.50 m/s front 0.031 rad",
     ]
     assert "overrides: brake_pedal" in lines
-    assert "loop: 50.0 Hz, 2000 cycles, 1 overruns, jitter p99 0.80 ms, step p99 0.30 ms" in lines
+    assert (
+        "loop: 50.0 Hz, 2000 cycles, 1 overruns, jitter p99 0.80 ms, step p99 0.30 ms, "
+        "wakes by timerfd, 12 deferred for a cycle"
+    ) in lines
     assert line_with(text, "lms111_left").split(maxsplit=1)[1] == "backoff, 2 restart(s)"
 
     # The order a person reads it in: mode, speed, refusals, faults, inputs, commands,

@@ -153,3 +153,6 @@ async def test_a_stopped_control_loop_holds_work_one_period_at_most() -> None:
     await asyncio.wait_for(slot.clear(), 5.0)  # released by the bound, not by a cycle
     assert time.monotonic() - started_s >= 0.04
     assert slot.deferred == 1
+    clock.now_s = 0.2  # a period and more past the deadline: nobody is ticking, no wait
+    await slot.clear()
+    assert slot.deferred == 1  # counted only when it waits
