@@ -279,14 +279,26 @@ async def test_a_restarted_twin_is_resynced(rig: Rig) -> None:
 
 
 async def test_the_twin_brakes_100_ms_after_commands_stop(rig: Rig) -> None:
+    """Over the link, with the client gone, the twin brakes by its own command timeout.
+
+    The exact 100 ms is test_twin_core's, on a fake clock. Here the client is cancelled in
+    the step that gave it its last command: a client left running 100 ms past that sends
+    STOP itself (its own timeout), and the twin would then brake because it was told to
+    (census run 6 of issue 9: its log has ``pc104_holding_stop`` 20 ms before the client
+    stopped, and the twin braked 18 ms after that accepted STOP). How soon after 100 ms is the machine's business, so the upper
+    bound only says "promptly".
+    """
     await rig.drive(FORWARD, 1.0)
     assert rig.world.state.speed_mps > 0.3
+    rig.client.send_command(FORWARD)
     await rig.stop_client()
-    await wait_until(lambda: rig.world.command.pattern is MotionPattern.STOP, 0.5)
+    await wait_until(lambda: rig.world.command.pattern is MotionPattern.STOP, 2.0)
     braked_s = time.monotonic()
+    last = rig.twin.core.command
+    assert last is not None and last.pattern is FORWARD.pattern  # not told to stop
     last_command_s = rig.twin.core.command_monitor.last_accepted_s
     assert last_command_s is not None
-    assert MAX_AGE_S <= braked_s - last_command_s < MAX_AGE_S + 0.02
+    assert MAX_AGE_S <= braked_s - last_command_s < MAX_AGE_S + 1.0
     assert rig.world.command.brake_pct == 100.0
     await wait_until(lambda: rig.world.state.speed_mps == 0.0, 2.0, "vehicle at rest")
 
