@@ -142,12 +142,15 @@ async def test_status_and_measurements_flow_to_the_topics(rig: Rig) -> None:
     now_s = time.monotonic()
     fast: list[Topic[Any]] = [topics.status, topics.wheel_angles, topics.motor_pulses]
     slow: list[Topic[Any]] = [topics.inclinometer, topics.heartbeat]
+    # Fresh, not punctual: the rates above say 50 and 10 Hz; an age or a beat gap says the
+    # data and the beats keep coming, and a loaded machine stalls a loop by tens of ms
+    # (25 ms seen in the soaks), so the bounds are a few periods, not one.
     for topic in fast:
-        assert topic.age_s(now_s) < 0.05, topic.name
+        assert topic.age_s(now_s) < 0.2, topic.name
     for topic in slow:
-        assert topic.age_s(now_s) < 0.15, topic.name
+        assert topic.age_s(now_s) < 0.4, topic.name
     beat_gaps = [b - a for a, b in itertools.pairwise(rig.beats)]
-    assert max(beat_gaps) < 0.05
+    assert max(beat_gaps) < 0.25
 
 
 async def test_commands_move_the_simulated_vehicle(rig: Rig) -> None:
@@ -285,8 +288,8 @@ async def test_the_twin_brakes_100_ms_after_commands_stop(rig: Rig) -> None:
     the step that gave it its last command: a client left running 100 ms past that sends
     STOP itself (its own timeout), and the twin would then brake because it was told to
     (census run 6 of issue 9: its log has ``pc104_holding_stop`` 20 ms before the client
-    stopped, and the twin braked 18 ms after that accepted STOP). How soon after 100 ms is the machine's business, so the upper
-    bound only says "promptly".
+    stopped, and the twin braked 18 ms after that accepted STOP). How soon after 100 ms
+    is the machine's business, so the upper bound only says "promptly".
     """
     await rig.drive(FORWARD, 1.0)
     assert rig.world.state.speed_mps > 0.3
