@@ -14,6 +14,7 @@ from hypothesis import strategies as st
 
 from appliance.timerfd import open_timerfd
 from appliance.timing import ControlSlot, FixedRateTicker, SampleWindow
+from tests.unit.test_early_wake import FakeClock
 
 linux_only = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="timerfd is Linux's")
 
@@ -106,14 +107,6 @@ def test_a_ticker_moves_its_timerfd_to_each_new_loop() -> None:
     asyncio.run(two_ticks())
     assert first >= 1 and ticker.timerfd_wakes >= 1
     ticker.close()
-
-
-class FakeClock:
-    def __init__(self) -> None:
-        self.now_s = 0.0
-
-    def __call__(self) -> float:
-        return self.now_s
 
 
 async def test_work_far_from_a_deadline_goes_at_once_and_near_one_waits_for_the_cycle() -> None:
