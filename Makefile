@@ -52,8 +52,8 @@ typecheck: venv
 unit: venv
 	$(BIN)/pytest
 
-# Hardware-in-the-loop tests over real SocketCAN vcan: the host's, else user-mode Linux (the
-# system's, or Debian testing's where that one does not boot), else QEMU; chosen by probe.
+# Hardware-in-the-loop tests over real SocketCAN vcan: the host's, else user-mode Linux
+# (Debian testing's, fetched, or the system's where that fails), else QEMU; chosen by probe.
 # HIL_WAY=native|uml-system|uml-testing|qemu forces one.
 HIL_WAY ?= auto
 hil: venv debian-deps

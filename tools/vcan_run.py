@@ -3,13 +3,14 @@
 
 Why this exists: the HIL tests need kernel SocketCAN, but the development and CI
 machines run kernels without CAN (socket(AF_CAN) fails with errno 97). This finds a
-kernel with vcan, by probing, in this order (``--way auto``): the host's own; the
-system's user-mode Linux (``/usr/bin/linux.uml``) if a probe boot brings vcan0 up (it
-panics at init on CPUs with AMX); user-mode Linux from Debian testing, fetched through a
-private apt list into ``${XDG_CACHE_HOME:-~/.cache}/dbw-applique/vcan/`` and probed the
-same way; QEMU with bookworm's kernel. A guest sees the host's root file system, so it
-runs this very checkout and virtualenv; the test output and exit status come back
-through files on the host. The machinery is in ``tools/vcan/``; the recipes are in
+kernel with vcan, by probing, in this order (``--way auto``): the host's own;
+user-mode Linux from Debian testing, fetched through a private apt list into
+``${XDG_CACHE_HOME:-~/.cache}/dbw-applique/vcan/``, if a probe boot brings vcan0 up (its
+seccomp mode halves the cost of the guest's system calls: tools/vcan/ways.py); the
+system's user-mode Linux (``/usr/bin/linux.uml``), probed the same way (bookworm's panics
+at init on CPUs with AMX); QEMU with bookworm's kernel. A guest sees the host's root
+file system, so it runs this very checkout and virtualenv; the test output and exit
+status come back through files on the host. The machinery is in ``tools/vcan/``; the recipes are in
 /work/shared/notes/vcan-on-amx-hosts.md and vcan-without-kernel-support.md.
 
 Usage: tools/vcan_run.py [--way auto|native|uml-system|uml-testing|qemu] [--timeout-s N]

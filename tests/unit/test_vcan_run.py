@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from tools.vcan import apt, qemu
+from tools.vcan import apt, qemu, uml
 from tools.vcan.common import PROBE_OK, Kernel, WayFailed, probe_verdict, pytest_command
 from tools.vcan.ways import WAYS, NoWay, cache_dir, failure_line, order_for, select
 
@@ -168,10 +168,10 @@ def finder(way: str, failure: str | None, calls: list[str]) -> Callable[[], Kern
 
 def test_auto_tries_the_ways_in_order_and_takes_the_first_that_works() -> None:
     calls: list[str] = []
-    results = {"native": "no SocketCAN", "uml-system": "probe boot: panic", "uml-testing": None}
+    results = {"native": "no SocketCAN", "uml-testing": "apt-get update failed", "uml-system": None}
     finders = {w: finder(w, results.get(w), calls) for w in WAYS}
-    assert select(order_for("auto"), finders).way == "uml-testing"
-    assert calls == ["native", "uml-system", "uml-testing"]  # qemu never asked
+    assert select(order_for("auto"), finders).way == "uml-system"
+    assert calls == ["native", "uml-testing", "uml-system"]  # qemu never asked
 
 
 def test_native_first_when_the_host_has_can() -> None:
@@ -194,8 +194,24 @@ def test_a_forced_way_is_the_only_one_tried() -> None:
     assert err.value.failures == [("uml-testing", "apt-get update failed")]
 
 
-def test_order_is_native_system_uml_testing_uml_qemu() -> None:
-    assert order_for("auto") == ("native", "uml-system", "uml-testing", "qemu")
+def test_order_is_native_testing_uml_system_uml_qemu() -> None:
+    assert order_for("auto") == ("native", "uml-testing", "uml-system", "qemu")
+
+
+def test_seccomp_mode_is_asked_for_only_where_the_kernel_parses_it(tmp_path: Path) -> None:
+    new, old = tmp_path / "linux-7.2.uml", tmp_path / "linux-6.1.uml"
+    new.write_bytes(b"\x7fELF..." + uml.SECCOMP_OPTION_MESSAGE + b"...")
+    old.write_bytes(b"\x7fELF... no such option ...")
+    assert uml.knows_seccomp(new) and not uml.knows_seccomp(old)
+    assert not uml.knows_seccomp(tmp_path / "missing")
+    args = {
+        binary.name: uml.uml_argv(
+            uml.Uml(binary, tmp_path, "v", uml.knows_seccomp(binary)), tmp_path, tmp_path, "1G"
+        )
+        for binary in (new, old)
+    }
+    assert "seccomp=auto" in args[new.name]
+    assert not any(a.startswith("seccomp") for a in args[old.name])
 
 
 def test_when_nothing_works_one_line_names_every_way_and_why() -> None:
