@@ -53,13 +53,24 @@ def dbw(*args: str, stdout: Any) -> subprocess.Popen[str]:
 
 
 def heartbeats(log: Path) -> list[dict[str, Any]]:
+    """The heartbeat events the daemon has written so far. The log is read while the daemon
+    writes it, and a long line reaches the file in more than one write: the text after the
+    last newline is a line still being written, not a malformed one, and waits for the next
+    read."""
     events = []
-    for line in log.read_text().splitlines():
+    complete = log.read_text().rpartition("\n")[0]
+    for line in complete.splitlines():
         if line.startswith("{"):
             event = json.loads(line)
             if event.get("event") == "heartbeats":
                 events.append(event)
     return events
+
+
+def describe(proc: subprocess.Popen[str]) -> str:
+    """``dbw run``, ``dbw sim`` or the program's name."""
+    args = [str(a) for a in proc.args] if isinstance(proc.args, list) else [str(proc.args)]
+    return f"dbw {args[5]}" if args[1:3] == ["-m", "appliance"] else Path(args[0]).name
 
 
 def wait_for(
@@ -68,13 +79,20 @@ def wait_for(
     what: str,
     log: Path,
     alive: tuple[subprocess.Popen[str], ...] = (),
+    also: tuple[Path, ...] = (),
 ) -> None:
-    deadline = time.monotonic() + timeout_s
+    start_s = time.monotonic()
     while not condition():
-        if any(p.poll() is not None for p in alive) or time.monotonic() > deadline:
-            tail = "\n".join(log.read_text().splitlines()[-15:])
+        dead = [p for p in alive if p.poll() is not None]
+        waited_s = time.monotonic() - start_s
+        if dead or waited_s > timeout_s:
+            why = ", ".join(f"{describe(p)} exited {p.returncode}" for p in dead)
+            tail = "\n".join(
+                f"{path.name}:\n" + "\n".join(path.read_text().splitlines()[-15:])
+                for path in (log, *also)
+            )
             pytest.fail(
-                f"gave up after {timeout_s} s (or a process died) waiting for {what}:\n{tail}"
+                f"gave up after {waited_s:.1f} s ({why or 'timed out'}) waiting for {what}:\n{tail}"
             )
         time.sleep(0.05)
 
@@ -123,7 +141,7 @@ def test_daemon_and_simulated_vehicle_over_vcan(vcan_channel: str, tmp_path: Pat
             link = pc104_link(daemon_log)
             return link.startswith("up ") and "control=automatic" in link
 
-        wait_for(link_up, 30, "the PC104 link to come up", daemon_log, (sim, daemon))
+        wait_for(link_up, 30, "the PC104 link to come up", daemon_log, (sim, daemon), (sim_log,))
 
         db = cantools.database.load_file(str(protocol.DBC_PATH))
         assert isinstance(db, cantools.database.can.Database)
