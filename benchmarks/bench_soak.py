@@ -41,6 +41,7 @@ from benchmarks.late_cycles import LateCycles
 WAIT_S = 60.0
 UNIT_FILE = os.path.join(os.path.dirname(__file__), os.pardir, "systemd", "dbw.service")
 CLOCK_TICKS_S = os.sysconf("SC_CLK_TCK")
+CPUS = os.cpu_count() or 1
 
 
 def goal_p99_s(rate_hz: float) -> float:
@@ -97,6 +98,22 @@ def cpu_s(pid: int) -> float:
     except OSError:
         return 0.0
     return (int(fields[11]) + int(fields[12])) / CLOCK_TICKS_S
+
+
+def steal_s() -> float | None:
+    """CPU time the hypervisor gave to others while this machine's CPUs wanted it, summed
+    over all CPUs since boot (``steal`` of /proc/stat); None where the kernel has none.
+
+    Why: a late cycle with no callback running (benchmarks/late_cycles.py) is either the
+    host kernel or the hypervisor not running the daemon; steal tells the second apart."""
+    try:
+        with open("/proc/stat", encoding="ascii") as f:
+            fields = f.readline().split()
+    except OSError:
+        return None
+    if fields[:1] != ["cpu"] or len(fields) < 9:
+        return None
+    return int(fields[8]) / CLOCK_TICKS_S
 
 
 @dataclass
@@ -211,12 +228,25 @@ class Soak:
         cpu0, wall0 = time.process_time(), time.monotonic()
         mode0 = self.core.state.mode
         end_s = wall0 + seconds
+        steal0 = steal_before = steal_s()
+        worst_steal_s = 0.0  # the most steal in one sampling second of the phase
         while (left_s := end_s - time.monotonic()) > 0:
             await asyncio.sleep(min(left_s, 1.0))
+            steal_now = steal_s()
+            if steal_now is not None and steal_before is not None:
+                worst_steal_s = max(worst_steal_s, steal_now - steal_before)
+            steal_before = steal_now
             lag = self.daemon.last_loop_lag
             if lag is not None and lag.longest_ms > worst_callback[0]:
                 worst_callback = (lag.longest_ms, lag.longest_by)
         wall_s = time.monotonic() - wall0
+        steal_end = steal_s()
+        steal_line = (
+            "    host: no steal figure (no /proc/stat steal)"
+            if steal0 is None or steal_end is None
+            else f"    host: steal {100 * (steal_end - steal0) / (wall_s * CPUS):.2f} % of the "
+            f"{CPUS} CPUs' time, at most {1000 * worst_steal_s:.0f} ms in one second"
+        )
         daemon_cpu = 100 * (time.process_time() - cpu0) / wall_s
         sim_cpu = 100 * (cpu_s(sim_pid) - sim0) / wall_s if sim_pid else float("nan")
         assert recorder.original is not None
@@ -240,6 +270,7 @@ class Soak:
             f"    event loop: longest callback {worst_callback[0]:.2f} ms ({worst_callback[1]})",
             f"    CPU: daemon {daemon_cpu:.0f} % of a core, simulated vehicle {sim_cpu:.0f} %"
             + ("; the simulated vehicle was RESTARTED" if restarted else ""),
+            steal_line,
             *late.lines(),
         ]
 
