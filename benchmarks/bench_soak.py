@@ -36,7 +36,7 @@ from appliance.daemon import Daemon
 from appliance.logs import configure_logging
 from appliance.modes import Mode
 from appliance.timing import JitterReport, RateStats
-from benchmarks.late_cycles import LateCycles
+from benchmarks.late_cycles import LateCycles, SchedProbe
 
 WAIT_S = 60.0
 UNIT_FILE = os.path.join(os.path.dirname(__file__), os.pardir, "systemd", "dbw.service")
@@ -213,7 +213,10 @@ class Soak:
         # Every cycle of the phase, kept here: the daemon's own window stays its 5,000
         # samples, because its heartbeat takes percentiles of it every second (a window
         # of a whole phase made that a 4-25 ms callback of its own in an earlier run).
-        late = LateCycles(self.daemon.loop_monitor, threshold_s=goal_p99_s(self.rate_hz))
+        probe = SchedProbe()  # opened here, in the loop's thread, which it watches
+        late = LateCycles(
+            self.daemon.loop_monitor, threshold_s=goal_p99_s(self.rate_hz), probe=probe.read
+        )
         recorder = PhaseRecorder(late, cycles=int(self.rate_hz * seconds * 1.5) + 1000)
         control.ticker.stats.reset()
         control.ticker.stats.update = recorder.tee(control.ticker.stats.update)  # type: ignore[method-assign]
@@ -252,6 +255,7 @@ class Soak:
         assert recorder.original is not None
         control.ticker.stats.update = recorder.original  # type: ignore[method-assign,assignment]
         late.close()
+        probe.close()
         r = recorder.report()
         now = self.core.state
         faults = sum(self.watch.faults.values())

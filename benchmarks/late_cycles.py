@@ -9,17 +9,23 @@ than a threshold it splits the lateness into what overlapped it:
 
 - each callback that ran inside the window (the control task's own step excluded),
 - each collection (by generation; it runs inside some callback, so it is subtracted there),
+- with a ``SchedProbe``, the time the loop's thread waited on the kernel's run queue
+  (runnable, no CPU given: ``run_delay`` of its schedstat, to the nanosecond), taken out of
+  the rest below; and whether the hypervisor stole CPU time from this machine since the
+  cycle before (``steal`` of /proc/stat, over every CPU, in 10 ms ticks);
 - the rest: time the loop ran no callback at all, so the process was waiting in the
   selector past its deadline, for the GIL (another thread of the process held it), or for
-  a CPU (the kernel or the hypervisor gave it to someone else).
+  a CPU the hypervisor gave to another machine (which the guest cannot see as waiting).
 
 The cause of a late cycle is the biggest of these parts. Benchmarks only: it wraps the
-loop monitor's ``record`` and costs a clock read and a tuple per callback.
+loop monitor's ``record`` and costs a clock read and a tuple per callback, and with a
+probe two preads of procfs per cycle.
 """
 
 from __future__ import annotations
 
 import gc
+import os
 import statistics
 import time
 from collections import Counter, defaultdict, deque
@@ -29,6 +35,27 @@ from typing import Any
 from appliance.loop_monitor import LoopMonitor, callback_name
 
 GAP = "no callback running (selector, GIL or CPU wait)"
+RUN_QUEUE = "runnable, waiting for a CPU (run queue)"
+
+
+class SchedProbe:
+    """The calling thread's cumulative run-queue wait and the machine's cumulative steal,
+    both in seconds. Open it in the thread to watch (the event loop's)."""
+
+    def __init__(self) -> None:
+        self._schedstat = os.open("/proc/thread-self/schedstat", os.O_RDONLY)
+        self._stat = os.open("/proc/stat", os.O_RDONLY)
+        self._tick_s = 1.0 / os.sysconf("SC_CLK_TCK")
+
+    def read(self) -> tuple[float, float]:
+        run_delay_ns = int(os.pread(self._schedstat, 128, 0).split()[1])
+        cpu = os.pread(self._stat, 256, 0).split(b"\n", 1)[0].split()
+        steal_s = int(cpu[8]) * self._tick_s if len(cpu) > 8 else 0.0
+        return run_delay_ns * 1e-9, steal_s
+
+    def close(self) -> None:
+        os.close(self._schedstat)
+        os.close(self._stat)
 
 
 class _Named:
@@ -48,8 +75,12 @@ class LateCycles:
         clock: Callable[[], float] = time.perf_counter,
         keep: int = 4096,
         own_task: str = "task control",
+        probe: Callable[[], tuple[float, float]] | None = None,
     ) -> None:
         self.threshold_s = threshold_s
+        self._probe = probe
+        self._probed: tuple[float, float] | None = None
+        self.stolen = 0  # late cycles with host steal since the cycle before
         self._clock = clock
         self._own = own_task
         self._callbacks: deque[tuple[float, float, Any]] = deque(maxlen=keep)
@@ -72,6 +103,8 @@ class LateCycles:
         self.causes.clear()
         self.parts_ms.clear()
         self.late = 0
+        self.stolen = 0
+        self._probed = None
 
     def _recording(self, duration_s: float, handle: Any) -> None:
         end_s = self._clock()
@@ -88,10 +121,19 @@ class LateCycles:
             self._gc_started = None
 
     def update(self, scheduled_s: float, actual_s: float) -> None:
-        """One cycle's deadline and wake-up (the clock must be the monitor's)."""
+        """One cycle's deadline and wake-up (the clock must be the monitor's); called for
+        every cycle, so that a probe's counters are read at each wake-up."""
+        waited_s = stolen_s = 0.0
+        if self._probe is not None:
+            probed, previous = self._probe(), self._probed
+            self._probed = probed
+            if previous is not None:
+                waited_s, stolen_s = probed[0] - previous[0], probed[1] - previous[1]
         if actual_s - scheduled_s < self.threshold_s:
             return
         self.late += 1
+        if stolen_s > 0:
+            self.stolen += 1
         parts: defaultdict[str, float] = defaultdict(float)
         busy_s = 0.0
         # Newest first: callbacks are kept in the order they ended, so the first one that
@@ -119,7 +161,13 @@ class LateCycles:
             )
             if holder is not None:
                 parts[holder] = max(parts[holder] - collected_s, 0.0)
-        parts[GAP] += max(actual_s - scheduled_s - busy_s, 0.0)
+        idle_s = max(actual_s - scheduled_s - busy_s, 0.0)
+        # Run-queue wait since the last wake-up, at most the idle part of the lateness:
+        # waiting before the deadline (a preempted callback) did not make this cycle late.
+        queued_s = min(max(waited_s, 0.0), idle_s)
+        if queued_s > 0:
+            parts[RUN_QUEUE] += queued_s
+        parts[GAP] += idle_s - queued_s
         cause = max(parts, key=parts.__getitem__)
         self.causes[cause] += 1
         for name, part_s in parts.items():
@@ -141,4 +189,8 @@ class LateCycles:
         others = sum(self.causes.values()) - sum(c for _, c in self.causes.most_common(top))
         if others:
             out.append(f"      {others:5d}  other causes")
+        if self._probe is not None:
+            out.append(
+                f"      {self.stolen} of the {self.late} with host steal since the cycle before"
+            )
         return out
