@@ -100,22 +100,6 @@ def cpu_s(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / CLOCK_TICKS_S
 
 
-def steal_s() -> float | None:
-    """CPU time the hypervisor gave to others while this machine's CPUs wanted it, summed
-    over all CPUs since boot (``steal`` of /proc/stat); None where the kernel has none.
-
-    Why: a late cycle with no callback running (benchmarks/late_cycles.py) is either the
-    host kernel or the hypervisor not running the daemon; steal tells the second apart."""
-    try:
-        with open("/proc/stat", encoding="ascii") as f:
-            fields = f.readline().split()
-    except OSError:
-        return None
-    if fields[:1] != ["cpu"] or len(fields) < 9:
-        return None
-    return int(fields[8]) / CLOCK_TICKS_S
-
-
 @dataclass
 class Watch:
     """What the cycles' outputs said: faults raised and mode changes, by name."""
@@ -231,11 +215,11 @@ class Soak:
         cpu0, wall0 = time.process_time(), time.monotonic()
         mode0 = self.core.state.mode
         end_s = wall0 + seconds
-        steal0 = steal_before = steal_s()
+        steal0 = steal_before = probe.steal_s()
         worst_steal_s = 0.0  # the most steal in one sampling second of the phase
         while (left_s := end_s - time.monotonic()) > 0:
             await asyncio.sleep(min(left_s, 1.0))
-            steal_now = steal_s()
+            steal_now = probe.steal_s()
             if steal_now is not None and steal_before is not None:
                 worst_steal_s = max(worst_steal_s, steal_now - steal_before)
             steal_before = steal_now
@@ -243,7 +227,7 @@ class Soak:
             if lag is not None and lag.longest_ms > worst_callback[0]:
                 worst_callback = (lag.longest_ms, lag.longest_by)
         wall_s = time.monotonic() - wall0
-        steal_end = steal_s()
+        steal_end = probe.steal_s()
         steal_line = (
             "    host: no steal figure (no /proc/stat steal)"
             if steal0 is None or steal_end is None

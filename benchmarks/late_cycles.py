@@ -49,9 +49,12 @@ class SchedProbe:
 
     def read(self) -> tuple[float, float]:
         run_delay_ns = int(os.pread(self._schedstat, 128, 0).split()[1])
+        return run_delay_ns * 1e-9, self.steal_s() or 0.0
+
+    def steal_s(self) -> float | None:
+        """The machine's steal since boot, over every CPU (None where the kernel has none)."""
         cpu = os.pread(self._stat, 256, 0).split(b"\n", 1)[0].split()
-        steal_s = int(cpu[8]) * self._tick_s if len(cpu) > 8 else 0.0
-        return run_delay_ns * 1e-9, steal_s
+        return int(cpu[8]) * self._tick_s if cpu[:1] == [b"cpu"] and len(cpu) > 8 else None
 
     def close(self) -> None:
         os.close(self._schedstat)
