@@ -237,17 +237,22 @@ class Session:
                 )
 
     async def settle(self) -> float:
-        """READY, and staying so for SETTLE_S; returns when (wall clock, as candump's).
+        """READY, and staying so for SETTLE_S; returns when that stretch of READY began
+        (wall clock, as candump's): the first status that showed it.
 
         A guest that has just started the daemon can stall both processes for longer
         than an input's age limit: a fault the daemon rightly raises, but not one of
         the scenario's. The operator clears it as on the vehicle (override, once the
-        inputs are fresh again); the bus is checked strictly from the settled READY on.
+        inputs are fresh again); the bus is checked strictly from the settled READY on,
+        so its frames start with SETTLE_S of READY and STOP. (The end of the stretch
+        would not do: the operator engages right after it, and in one census run the
+        engagement's first motion command went out before the periodic STOP that would
+        have followed the last READY heartbeat, so the strict part held no STOP at all.)
         """
         await self.mode("ready", {"boot", "self_check"})
         deadline_s = time.monotonic() + LIVENESS_S
-        ready_since_s = time.monotonic()
-        while time.monotonic() - ready_since_s < SETTLE_S:
+        ready_since: tuple[float, float] | None = (time.monotonic(), time.time())
+        while ready_since is None or time.monotonic() - ready_since[0] < SETTLE_S:
             if self.daemon.returncode is not None or time.monotonic() > deadline_s:
                 pytest.fail(f"the daemon did not settle in READY\n{self.detail()}")
             status = await self.status()
@@ -257,10 +262,13 @@ class Session:
                 if status["mode"] == "error" and not faults:
                     self.note("press manual_override: the start-up fault has cleared")
                     self.twins.panel.press("manual_override")
-                ready_since_s = time.monotonic()
+                ready_since = None
+            elif status is not None and ready_since is None:
+                ready_since = (time.monotonic(), time.time())  # the reply showed READY
             await asyncio.sleep(0.1)
-        self.note("settled in READY: the strict part begins")
-        return time.time()
+        self.note("settled in READY: the strict part began with this stretch of READY")
+        assert ready_since is not None  # the loop ends only in a long enough stretch
+        return ready_since[1]
 
 
 async def operate(session: Session) -> float:
