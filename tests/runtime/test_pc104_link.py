@@ -197,7 +197,14 @@ async def test_bad_crc_is_counted_and_survived(rig: Rig) -> None:
         await asyncio.sleep(0.2)
         rig.twin.faults.bad_crc = False
         await wait_until(lambda: rig.client.health().stale is False, 1.0)
-        await asyncio.sleep(0.3)
+        # Each message's episode ends when its error budget has drained, one good frame
+        # per error: for the 10 Hz messages four or five frames (0.3-0.5 s) after the
+        # status is fresh, by their phase (a fixed 0.3 s wait saw 3 of 5 end, once).
+        await wait_until(
+            lambda: len(events(logs, "pc104_receive_errors_ended")) >= 5,
+            2.0,
+            "an end to every message's receive errors",
+        )
     health = rig.client.health()
     assert health.crc_errors >= 15
     assert health.connected and health.reconnects == 0
