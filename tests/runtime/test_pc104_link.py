@@ -319,11 +319,16 @@ async def test_no_buffer_space_drops_frames_and_logs_once_per_episode() -> None:
     await rig.start()
     try:
         with capture_logs() as logs:
-            for _ in range(2):
+            for episode in (1, 2):
                 switch.errno = errno.ENOBUFS
                 await asyncio.sleep(0.3)
                 switch.errno = None
-                await asyncio.sleep(0.2)
+                # The next send ends the episode; a stall must not merge the two episodes.
+                await wait_until(
+                    lambda n=episode: len(events(logs, "pc104_send_drops_ended")) >= n,
+                    2.0,
+                    f"the end of send-drop episode {episode}",
+                )
         health = rig.client.health()
         assert health.send_drops >= 25
         assert health.connected and health.reconnects == 0 and switch.opened == 1
