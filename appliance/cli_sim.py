@@ -23,7 +23,7 @@ from appliance.config.models import CanEndpoint, CanInterface
 from appliance.logs import get_logger
 from appliance.simulator import Simulator, build_simulator
 from appliance.supervisor import Supervisor
-from calibration.calfile import write_calibration
+from calibration.calfile import write_calibration, write_text_atomic
 from calibration.simulated import simulated_calibration
 from safety.watchdog import RestartPolicy
 
@@ -104,7 +104,7 @@ async def run_simulator(
                 simulated_calibration(f"{config.name}-via-dbw-sim"),
             )
             text = daemon_config(config, simulator, can, calibration_file.resolve())
-            await asyncio.to_thread(write_config.write_text, text, encoding="utf-8")
+            await asyncio.to_thread(write_text_atomic, write_config, text)
             click.echo(f"{'daemon config':>16}: {write_config}  (dbw run --config {write_config})")
         sys.stdout.flush()
         log.info("simulator_ready", endpoints=endpoints)

@@ -356,6 +356,17 @@ def write_calibration(path: str | Path, model: CalibrationFile) -> None:
     text = dumps_calibration(model)
     if _parse_model(text, "<written calibration>").model_dump() != model.model_dump():
         raise ValueError("the written calibration does not read back equal (a writer bug)")
+    write_text_atomic(path, text)
+
+
+def write_text_atomic(path: str | Path, text: str) -> None:
+    """Replace ``path`` by ``text`` so that a reader sees the old file or the new one, whole.
+
+    Another process may be waiting for the file to appear (the daemon for `dbw sim
+    --write-config`), and the vehicle may lose power mid-write: a partly written file would
+    parse as a different, valid-looking configuration with its missing sections defaulted.
+    """
+    path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp_name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     try:

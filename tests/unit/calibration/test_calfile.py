@@ -6,6 +6,7 @@ import json
 import math
 import os
 import tempfile
+import threading
 import tomllib
 from datetime import UTC, datetime
 from pathlib import Path
@@ -31,6 +32,7 @@ from calibration.calfile import (
     parse_calibration,
     read_calibration_file,
     write_calibration,
+    write_text_atomic,
 )
 
 # The example of the format's documentation, as raw TOML values, table by table.
@@ -483,6 +485,47 @@ def test_an_unwritable_model_touches_nothing(tmp_path: Path) -> None:
         write_calibration(path, new.model_copy(update={"source": "bad \udc80"}))
     assert path.read_text(encoding="utf-8") == old
     assert os.listdir(tmp_path) == ["cal.toml"]
+
+
+def test_a_reader_polling_for_the_file_sees_it_whole_or_not_at_all(tmp_path: Path) -> None:
+    """The race of `dbw sim --write-config`: the other side loads the file once it exists."""
+    path = tmp_path / "via-sim.toml"
+    versions = [("a" * 1_000_000) + "\n", ("b" * 2_000_000) + "\n"]
+    seen: set[int] = set()
+    torn: list[int] = []
+    done = threading.Event()
+
+    def read() -> None:
+        while not done.is_set():
+            try:
+                text = path.read_text(encoding="utf-8")
+            except FileNotFoundError:
+                continue
+            seen.add(len(text))
+            if text not in versions:
+                torn.append(len(text))
+
+    reader = threading.Thread(target=read)
+    reader.start()
+    try:
+        for turn in range(20):
+            write_text_atomic(path, versions[turn % 2])
+    finally:
+        done.set()
+        reader.join()
+    assert not torn, f"a reader saw partial files of {sorted(set(torn))[:5]} characters"
+    assert seen <= {len(v) for v in versions}
+    assert os.listdir(tmp_path) == ["via-sim.toml"]
+    assert os.stat(path).st_mode & 0o777 == 0o644
+
+
+def test_write_text_atomic_of_unencodable_text_keeps_the_old_file(tmp_path: Path) -> None:
+    path = tmp_path / "via-sim.toml"
+    path.write_text("old = 1\n", encoding="utf-8")
+    with pytest.raises(UnicodeEncodeError):
+        write_text_atomic(path, "new = 1\n" * 10_000 + "\udc80")
+    assert path.read_text(encoding="utf-8") == "old = 1\n"
+    assert os.listdir(tmp_path) == ["via-sim.toml"]
 
 
 # --- the CLI ------------------------------------------------------------------------------
