@@ -14,9 +14,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Protocol
 
-from appliance.logs import get_logger
+import structlog
+from structlog.typing import FilteringBoundLogger
 
-log = get_logger("safety")
+log: FilteringBoundLogger = structlog.get_logger(component="safety")
 
 
 @dataclass(frozen=True)

@@ -30,10 +30,10 @@ from dataclasses import dataclass
 from typing import Any, Generic, TypeVar
 
 import serial  # type: ignore[import-untyped]
+import structlog
 from structlog.typing import FilteringBoundLogger
 
 from appliance.config.models import SIM_PORT_PREFIX
-from appliance.logs import get_logger
 from appliance.topics import Topic
 from drivers.actuators.framing import ActuatorProtocolError
 from drivers.actuators.messages import (
@@ -47,7 +47,7 @@ from drivers.actuators.messages import (
 from drivers.actuators.protocol import NEED_DATA, ActuatorCodec, Role
 from drivers.wakeup import Wakeup
 
-log = get_logger("actuators")
+log: FilteringBoundLogger = structlog.get_logger(component="actuators")
 
 TelemetryT = TypeVar("TelemetryT", bound=Telemetry)
 

@@ -37,8 +37,10 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, Final
 
+import structlog
+from structlog.typing import FilteringBoundLogger
+
 from appliance.config.models import Lms111Endpoint, SensorMount
-from appliance.logs import get_logger
 from appliance.topics import Topic
 from drivers.lms111.cola import ErrorReply, ScanTelegram
 from drivers.lms111.commands import ScanDataConfig
@@ -57,7 +59,7 @@ from drivers.lms111.session import (
 )
 from drivers.lms111.timebase import DeviceTimeUnwrapper
 
-log = get_logger("lms111")
+log: FilteringBoundLogger = structlog.get_logger(component="lms111")
 
 Beat = Callable[[], None]
 RATE_WINDOW_S: Final = 1.0

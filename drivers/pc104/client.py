@@ -29,9 +29,10 @@ import time
 from collections.abc import Awaitable, Callable
 
 import can
+import structlog
+from structlog.typing import FilteringBoundLogger
 
 from appliance.config.models import VehicleConfig
-from appliance.logs import get_logger
 from drivers.pc104 import protocol
 from drivers.pc104.client_core import (
     ClientParams,
@@ -56,7 +57,7 @@ from drivers.pc104.messages import (
 from drivers.pc104.monitor import MonitorParams, ReceiveMonitor, RxVerdict
 from drivers.pc104.protocol import ErrorReason, Pc104ProtocolError
 
-log = get_logger("pc104")
+log: FilteringBoundLogger = structlog.get_logger(component="pc104")
 
 MAX_FRAMES_PER_TURN = 256
 _BUS_STATES = {can.BusState.PASSIVE: BusCondition.PASSIVE, can.BusState.ERROR: BusCondition.BUS_OFF}
