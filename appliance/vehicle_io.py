@@ -26,7 +26,6 @@ from appliance.config.models import CanInterface, SimPlacement
 from appliance.core.core import CoreOutput
 from appliance.core.inputs import LinkCounts
 from appliance.logs import get_logger
-from appliance.sim.vehicle import MotionPattern
 from appliance.sim_process import SimProcess
 from appliance.simulator import Simulator, build_simulator, lms111_dialect
 from appliance.supervisor import PermanentServiceError, ServiceSpec, beating_service
@@ -44,7 +43,7 @@ from drivers.lms111.client import Lms111Client
 from drivers.lms111.mounted import MountedScan
 from drivers.lms111.session import Lms111ConfigError
 from drivers.pc104.client import Pc104Client
-from drivers.pc104.messages import MotionCommand
+from drivers.pc104.messages import MotionCommand, MotionPattern
 from safety.safe_stop import SafeCommand, SafeStopTarget
 from safety.watchdog import RestartPolicy
 

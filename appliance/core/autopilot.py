@@ -15,8 +15,8 @@ from dataclasses import dataclass, field
 from typing import Protocol
 
 from appliance.config.models import VehicleConfig, VehicleKind
-from appliance.sim.vehicle import MotionPattern
 from drivers.lms111.mounted import MountedScan
+from drivers.pc104.messages import MotionPattern
 
 
 @dataclass(frozen=True)

@@ -23,21 +23,9 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
-from enum import StrEnum
 
 from appliance.config.models import VehicleConfig
-
-
-class MotionPattern(StrEnum):
-    """The motion patterns of the PC104 lower-level controller (Qian et al. section 2.1)."""
-
-    STOP = "stop"
-    STRAIGHT = "straight"
-    OBLIQUE = "oblique"  # crab: all wheels parallel at the crab angle
-    FRONT_STEER = "front_steer"
-    REAR_STEER = "rear_steer"
-    COUNTER_STEER = "counter_steer"  # proportional: phi_r = k * phi_f
-    TURN_AROUND = "turn_around"  # rotate in place about the geometric centre
+from drivers.pc104.messages import MotionPattern
 
 
 @dataclass(frozen=True)

@@ -17,10 +17,20 @@ from __future__ import annotations
 from dataclasses import dataclass
 from enum import StrEnum
 
-from appliance.sim.vehicle import MotionPattern
-
 # The major version of pc104.dbc this code implements; sent in both heartbeats.
 PROTOCOL_VERSION = 1
+
+
+class MotionPattern(StrEnum):
+    """The motion patterns of the PC104 lower-level controller (Qian et al. section 2.1)."""
+
+    STOP = "stop"
+    STRAIGHT = "straight"
+    OBLIQUE = "oblique"  # crab: all wheels parallel at the crab angle
+    FRONT_STEER = "front_steer"
+    REAR_STEER = "rear_steer"
+    COUNTER_STEER = "counter_steer"  # proportional: phi_r = k * phi_f
+    TURN_AROUND = "turn_around"  # rotate in place about the geometric centre
 
 
 class ControlSource(StrEnum):
