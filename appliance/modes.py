@@ -16,6 +16,9 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 from enum import StrEnum
 
+from safety.faults import FaultCleared as FaultCleared
+from safety.faults import FaultRaised as FaultRaised
+
 
 class Mode(StrEnum):
     BOOT = "boot"
@@ -81,16 +84,6 @@ class SteeringOverridden:
 @dataclass(frozen=True)
 class ThrottlePedalPressed:
     """The operator's foot on the throttle in speed hold: the throttle is theirs again."""
-
-
-@dataclass(frozen=True)
-class FaultRaised:
-    reason: str
-
-
-@dataclass(frozen=True)
-class FaultCleared:
-    reason: str
 
 
 @dataclass(frozen=True)

@@ -4,9 +4,11 @@ The rules return levels ("the steering is off track now"); the operator and the 
 edges ("the steering went off track at 12.34 s", "it recovered at 13.00 s"). Every fault
 is raised once when its key appears and cleared once when it disappears, so each is
 logged once, not every cycle it stays active. The keys are the mode machine's fault
-reasons: a raised record is one ``appliance.modes.FaultRaised(reason=key)``, a cleared
-one is one ``FaultCleared(reason=key)``. Latching is the mode machine's job: ERROR is
-left only through the operator's manual-override press once every fault is cleared.
+reasons: a raised record is one ``FaultRaised(reason=key)``, a cleared one is one
+``FaultCleared(reason=key)``, the two events of the mode machine this module defines
+(``appliance.modes`` takes them from here, so safety needs nothing from the runtime).
+Latching is the mode machine's job: ERROR is left only through the operator's
+manual-override press once every fault is cleared.
 
 Pure: no clock, no logging (the caller logs the changes), time comes in as ``now_s``.
 """
@@ -19,9 +21,21 @@ from collections.abc import Mapping
 from dataclasses import dataclass, replace
 from types import MappingProxyType
 
-from appliance.modes import FaultCleared, FaultRaised
-
 HISTORY_LENGTH = 100
+
+
+@dataclass(frozen=True)
+class FaultRaised:
+    """A fault key appeared: the mode machine revokes control and latches ERROR."""
+
+    reason: str
+
+
+@dataclass(frozen=True)
+class FaultCleared:
+    """A fault key went away: ERROR may be left, but only by the operator's override press."""
+
+    reason: str
 
 
 @dataclass(frozen=True)
