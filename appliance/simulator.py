@@ -20,12 +20,12 @@ import can as can_lib
 
 from appliance.config import VehicleConfig
 from appliance.config.models import CanEndpoint, CanInterface, ColaDialect
-from appliance.sim.site import Pose2D
 from appliance.sim.site_file import load_site
 from appliance.sim.vehicle import VehicleParams, VehicleState
 from appliance.sim.world import SimWorld
 from appliance.supervisor import ServiceSpec, beating_service
 from drivers.actuators.twin_set import ActuatorTwins
+from drivers.geometry import Pose2D
 from drivers.lms111 import Dialect
 from drivers.lms111.mounted import mount_pose
 from drivers.lms111.twin import Lms111Twin

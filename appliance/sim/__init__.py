@@ -32,8 +32,9 @@ from appliance.sim.scanner_model import (
     render_scan,
     scanner_pose,
 )
-from appliance.sim.site import Circle, Pose2D, Segment, ShapeArrays, Site, Walker
+from appliance.sim.site import Circle, Segment, ShapeArrays, Site, Walker
 from appliance.sim.site_file import SiteError, SiteFile, builtin_site_names, load_site, parse_site
+from drivers.geometry import Pose2D
 
 __all__ = [
     "LMS111_MAX_RANGE_M",

@@ -22,8 +22,9 @@ from typing import Annotated
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from appliance.sim.site import PERSON_RADIUS_M, WALKING_SPEED_MPS, Circle, Pose2D, Segment, Site
+from appliance.sim.site import PERSON_RADIUS_M, WALKING_SPEED_MPS, Circle, Segment, Site
 from appliance.sim.site import Walker as _Walker
+from drivers.geometry import Pose2D
 
 Coordinate = Annotated[float, Field(ge=-1000.0, le=1000.0)]
 Yaw = Annotated[float, Field(ge=-360.0, le=360.0)]

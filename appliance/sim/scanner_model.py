@@ -34,7 +34,8 @@ from appliance.sim.raycast import (
     nearest_hits,
     remission_of,
 )
-from appliance.sim.site import Pose2D, ShapeArrays, Site
+from appliance.sim.site import ShapeArrays, Site
+from drivers.geometry import Pose2D
 
 LMS111_START_ANGLE_RAD = math.radians(-45.0)
 LMS111_STOP_ANGLE_RAD = math.radians(225.0)

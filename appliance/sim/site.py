@@ -20,30 +20,10 @@ from typing import NamedTuple
 import numpy as np
 from numpy.typing import NDArray
 
+from drivers.geometry import Pose2D
+
 WALKING_SPEED_MPS = 1.2  # a brisk adult walk; what a person crossing a site does
 PERSON_RADIUS_M = 0.25  # shoulder-width blob at scanner height (~0.5 m across)
-
-
-class Pose2D(NamedTuple):
-    """A planar pose: position in metres, heading in radians (counter-clockwise from x)."""
-
-    x_m: float
-    y_m: float
-    yaw_rad: float
-
-    def compose(self, other: Pose2D) -> Pose2D:
-        """``other`` expressed in this pose's frame, returned in the parent frame."""
-        c, s = math.cos(self.yaw_rad), math.sin(self.yaw_rad)
-        return Pose2D(
-            self.x_m + c * other.x_m - s * other.y_m,
-            self.y_m + s * other.x_m + c * other.y_m,
-            self.yaw_rad + other.yaw_rad,
-        )
-
-    def apply(self, x_m: float, y_m: float) -> tuple[float, float]:
-        """A point given in this pose's frame, in the parent frame."""
-        c, s = math.cos(self.yaw_rad), math.sin(self.yaw_rad)
-        return self.x_m + c * x_m - s * y_m, self.y_m + s * x_m + c * y_m
 
 
 @dataclass(frozen=True)

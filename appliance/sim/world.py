@@ -19,12 +19,12 @@ from dataclasses import replace
 from typing import Any
 
 from appliance.sim.vehicle import (
-    MotionPattern,
     VehicleCommand,
     VehicleParams,
     VehicleState,
     step,
 )
+from drivers.pc104.messages import MotionPattern
 
 # Sources that turn the steering wheel; the operator's hands are listed last and win.
 STEERING_WHEEL_SOURCES = ("steering_servo", "operator")

@@ -44,7 +44,8 @@ from appliance.sim.scanner_model import (
     RayCache,
     render_scan,
 )
-from appliance.sim.site import Pose2D, Site
+from appliance.sim.site import Site
+from drivers.geometry import Pose2D
 from drivers.lms111.cola import CommandType, Reply
 from drivers.lms111.connection import Lms111Connection
 from drivers.lms111.errors import ProtocolError

@@ -7,8 +7,8 @@ import json
 import sys
 from pathlib import Path
 
-from appliance.sim.site import Pose2D
 from appliance.sim.site_file import load_site
+from drivers.geometry import Pose2D
 from drivers.lms111.twin import Lms111Twin
 
 

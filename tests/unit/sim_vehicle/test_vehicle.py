@@ -10,13 +10,13 @@ from hypothesis import strategies as st
 
 from appliance.config import load_config
 from appliance.sim.vehicle import (
-    MotionPattern,
     VehicleCommand,
     VehicleParams,
     VehicleState,
     sideslip_gain,
 )
 from appliance.sim.world import SimWorld
+from drivers.pc104.messages import MotionPattern
 
 PARAMS = VehicleParams(
     wheelbase_m=3.0,
