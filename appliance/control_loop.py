@@ -24,7 +24,8 @@ from appliance.core.inputs import ControlInputs, LinkCounts
 from appliance.logs import get_logger
 from appliance.supervisor import ServiceContext
 from appliance.timing import FixedRateTicker, SampleWindow
-from appliance.topics import Sample, TopicRegistry
+from appliance.topics import TopicRegistry
+from drivers.topics import Sample
 
 log = get_logger("control")
 

@@ -33,7 +33,6 @@ from appliance.loop_monitor import LoopLag, LoopMonitor
 from appliance.modes import Mode
 from appliance.supervisor import ServiceContext, ServiceSpec, ServiceState, Supervisor
 from appliance.systemd_notify import SystemdNotifier
-from appliance.topics import Topic
 from appliance.vehicle_io import (
     VehicleCommandSink,
     VehicleIO,
@@ -43,6 +42,7 @@ from appliance.vehicle_io import (
     pc104_link_counts,
 )
 from calibration.calfile import Calibration, CalibrationError, load_calibration
+from drivers.topics import Topic
 from safety.safe_stop import SafeCommand, SafeStop
 from safety.watchdog import RestartPolicy
 

@@ -30,7 +30,7 @@ from appliance.sim_process import SimProcess
 from appliance.simulator import Simulator, build_simulator, lms111_dialect
 from appliance.supervisor import PermanentServiceError, ServiceSpec, beating_service
 from appliance.timing import ControlSlot
-from appliance.topics import Topic, TopicRegistry
+from appliance.topics import TopicRegistry
 from drivers.actuators.boards import BoardClients, make_board_clients
 from drivers.actuators.client import ActuatorClient
 from drivers.actuators.messages import (
@@ -44,6 +44,7 @@ from drivers.lms111.mounted import MountedScan
 from drivers.lms111.session import Lms111ConfigError
 from drivers.pc104.client import Pc104Client
 from drivers.pc104.messages import MotionCommand, MotionPattern
+from drivers.topics import Topic
 from safety.safe_stop import SafeCommand, SafeStopTarget
 from safety.watchdog import RestartPolicy
 

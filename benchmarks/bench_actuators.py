@@ -24,7 +24,6 @@ from typing import Any, TypeVar
 from appliance.config import load_config
 from appliance.sim.vehicle import VehicleParams
 from appliance.sim.world import SimWorld
-from appliance.topics import Sample, Topic
 from benchmarks.stats import summarize
 from drivers.actuators.client import ActuatorClient
 from drivers.actuators.messages import (
@@ -41,6 +40,7 @@ from drivers.actuators.messages import (
 )
 from drivers.actuators.protocol import ActuatorCodec
 from drivers.actuators.twin_set import ActuatorTwins
+from drivers.topics import Sample, Topic
 
 T = TypeVar("T")
 DURATION_S = 4.0

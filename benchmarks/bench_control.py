@@ -51,13 +51,13 @@ from appliance.control_loop import StepTimes
 from appliance.core.core import CoreOutput
 from appliance.daemon import Daemon
 from appliance.modes import AUTOMATIC_MODES, Mode
-from appliance.topics import Topic
 from benchmarks.bench_pc104 import LoadGenerator
 from benchmarks.stats import summarize
 from drivers.actuators.messages import BUTTON_ORDER, Buttons, SteeringMode
 from drivers.actuators.twin import BoardTwin
 from drivers.pc104 import protocol
 from drivers.pc104.messages import MotionCommand, MotionPattern
+from drivers.topics import Topic
 
 RATES_HZ = (50.0, 100.0)
 TRIALS = 30

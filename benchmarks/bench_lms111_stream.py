@@ -30,11 +30,11 @@ from typing import Any
 
 from appliance.config.models import Lms111Endpoint, SensorMount
 from appliance.logs import configure_logging
-from appliance.topics import Topic
 from benchmarks.stats import summarize
 from drivers.lms111 import Dialect
 from drivers.lms111.client import Lms111Client, Lms111Health
 from drivers.lms111.mounted import MountedScan, mount_pose
+from drivers.topics import Topic
 
 MOUNTS = {
     "left": SensorMount(x_m=4.5, y_m=1.1, yaw_deg=45.0),

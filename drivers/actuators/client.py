@@ -34,7 +34,6 @@ import structlog
 from structlog.typing import FilteringBoundLogger
 
 from appliance.config.models import SIM_PORT_PREFIX
-from appliance.topics import Topic
 from drivers.actuators.framing import ActuatorProtocolError
 from drivers.actuators.messages import (
     BOARD_MESSAGES,
@@ -45,6 +44,7 @@ from drivers.actuators.messages import (
     encode_payload,
 )
 from drivers.actuators.protocol import NEED_DATA, ActuatorCodec, Role
+from drivers.topics import Topic
 from drivers.wakeup import Wakeup
 
 log: FilteringBoundLogger = structlog.get_logger(component="actuators")

@@ -35,19 +35,17 @@ import time
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Final
+from typing import Any, Final, Protocol
 
 import structlog
 from structlog.typing import FilteringBoundLogger
 
-from appliance.config.models import Lms111Endpoint, SensorMount
-from appliance.topics import Topic
 from drivers.lms111.cola import ErrorReply, ScanTelegram
 from drivers.lms111.commands import ScanDataConfig
 from drivers.lms111.errors import ProtocolError
 from drivers.lms111.framing import Dialect
 from drivers.lms111.handshake import StreamSettings, start_streaming
-from drivers.lms111.mounted import MountedScan, mount_pose
+from drivers.lms111.mounted import MountedScan, SensorMount, mount_pose
 from drivers.lms111.replies import DeviceStatus, LmsState, ScanConfig
 from drivers.lms111.scan import Scan
 from drivers.lms111.session import (
@@ -58,6 +56,7 @@ from drivers.lms111.session import (
     Lms111Session,
 )
 from drivers.lms111.timebase import DeviceTimeUnwrapper
+from drivers.topics import Topic
 
 log: FilteringBoundLogger = structlog.get_logger(component="lms111")
 
@@ -103,6 +102,23 @@ class _Episodes:
         previous = self._counts.get(key, 0)
         self._counts[key] = 1
         log.warning(event, scanner=self.scanner, previous_episode_count=previous, **fields)
+
+
+class Lms111Endpoint(Protocol):
+    """The scanner's address and scan mode, as a vehicle file states them
+    (``devices.lms111_left``); a protocol, so the driver names what it reads."""
+
+    @property
+    def host(self) -> str: ...
+
+    @property
+    def port(self) -> int: ...
+
+    @property
+    def scan_frequency_hz(self) -> int: ...
+
+    @property
+    def angular_resolution_deg(self) -> float: ...
 
 
 class Lms111Client:

@@ -13,17 +13,34 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from functools import cached_property
+from typing import Protocol
 
 import numpy as np
 import numpy.typing as npt
 
-from appliance.config.models import SensorMount
-from appliance.sim.site import Pose2D
+from drivers.geometry import Pose2D
 from drivers.lms111.scan import Scan
 
 FloatArray = npt.NDArray[np.float64]
 
 DEVICE_FORWARD_RAD = math.pi / 2.0  # the device angle that points along the scanner's x
+
+
+class SensorMount(Protocol):
+    """Where a scanner sits, as a vehicle file states it (``geometry.scanner_*_mount``).
+
+    A protocol rather than the file's model: the driver says what it reads, the vehicle
+    file's section (or a test's own object) provides it.
+    """
+
+    @property
+    def x_m(self) -> float: ...
+
+    @property
+    def y_m(self) -> float: ...
+
+    @property
+    def yaw_deg(self) -> float: ...
 
 
 def mount_pose(mount: SensorMount) -> Pose2D:

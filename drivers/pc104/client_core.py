@@ -9,7 +9,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from appliance.config.models import VehicleConfig
-from appliance.topics import Topic
 from drivers.pc104.errorframes import BusCondition
 from drivers.pc104.messages import (
     ControlSource,
@@ -21,6 +20,7 @@ from drivers.pc104.messages import (
     Pc104Status,
     WheelAngles,
 )
+from drivers.topics import Topic
 
 
 @dataclass(frozen=True)

@@ -27,12 +27,12 @@ from appliance.config import load_config
 from appliance.config.models import CanEndpoint, CanInterface
 from appliance.sim.vehicle import VehicleParams
 from appliance.sim.world import SimWorld
-from appliance.topics import Topic
 from drivers.pc104.client import Pc104Client
 from drivers.pc104.errorframes import BusCondition
 from drivers.pc104.link import bus_factory
 from drivers.pc104.messages import ControlSource, MotionCommand, MotionPattern, Pc104Status
 from drivers.pc104.twin import Pc104Twin
+from drivers.topics import Topic
 
 pytestmark = pytest.mark.timeout(30)
 

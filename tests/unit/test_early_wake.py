@@ -7,7 +7,6 @@ import time
 
 from appliance.control_loop import OperatorWatch
 from appliance.timing import FixedRateTicker
-from appliance.topics import Topic
 from drivers.actuators.messages import (
     BoardStatus,
     BrakeTelemetry,
@@ -15,6 +14,7 @@ from drivers.actuators.messages import (
     FaultCode,
     PanelTelemetry,
 )
+from drivers.topics import Topic
 
 
 class FakeClock:

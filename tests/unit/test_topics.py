@@ -5,7 +5,8 @@ from __future__ import annotations
 import asyncio
 import math
 
-from appliance.topics import Topic, TopicRegistry
+from appliance.topics import TopicRegistry
+from drivers.topics import Topic
 
 
 def test_latest_value_and_age() -> None:
