@@ -8,9 +8,9 @@ frames now and then without ever going stale: the error budget, after panda's
 ``wrong_counters``, tolerates the odd bad frame but not a run of them.
 
 Pure rules: time comes in as ``now_s`` (monotonic seconds), angles are tyre angles in
-radians, converted from the config's degrees once, in ``from_config``. Each returns the
-condition (a level); latching it into a fault is the fault monitor's and the mode
-machine's job.
+radians, converted from the vehicle file's degrees once, in ``appliance.config.parts``.
+Each returns the condition (a level); latching it into a fault is the fault monitor's
+and the mode machine's job.
 """
 
 from __future__ import annotations
@@ -18,8 +18,6 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
-
-from appliance.config.models import SafetyTimeouts
 
 
 @dataclass(frozen=True)
@@ -32,14 +30,6 @@ class SteeringTrackingParams:
             raise ValueError("tolerance_rad must be positive and finite")
         if not (math.isfinite(self.fault_after_s) and self.fault_after_s > 0.0):
             raise ValueError("fault_after_s must be positive and finite")
-
-    @classmethod
-    def from_config(cls, safety: SafetyTimeouts) -> SteeringTrackingParams:
-        """Convert degrees to radians here, at the edge, and nowhere else."""
-        return cls(
-            tolerance_rad=math.radians(safety.steer_tracking_tolerance_deg),
-            fault_after_s=safety.steer_tracking_fault_after_s,
-        )
 
 
 class SteeringTrackingMonitor:
@@ -118,10 +108,6 @@ class ErrorBudget:
             raise ValueError(f"limit must be a positive int (got {limit!r})")
         self.limit = limit
         self.reset()
-
-    @classmethod
-    def from_config(cls, safety: SafetyTimeouts) -> ErrorBudget:
-        return cls(safety.pc104_error_budget_limit)
 
     def reset(self) -> None:
         self.level = 0

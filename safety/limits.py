@@ -15,8 +15,6 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from appliance.config.models import Limits
-
 
 @dataclass(frozen=True)
 class ActuatorCommand:
@@ -29,7 +27,8 @@ class ActuatorCommand:
 
 @dataclass(frozen=True)
 class LimitParams:
-    """The limiter's parameters, in radians and SI, converted once from the config.
+    """The limiter's parameters, in radians and SI, converted once from the vehicle file
+    (``appliance.config.parts.limit_params``).
 
     ``steer_rate_fraction_at_max_speed`` makes the steering rate limit speed dependent:
     the allowed rate falls linearly from the full rate at standstill to this fraction of
@@ -59,28 +58,6 @@ class LimitParams:
             raise ValueError("steer_rate_fraction_at_max_speed must be in (0, 1]")
         if not self.max_step_dt_s > 0.0:
             raise ValueError("max_step_dt_s must be positive")
-
-    @classmethod
-    def from_config(
-        cls,
-        limits: Limits,
-        *,
-        steer_rate_fraction_at_max_speed: float = 1.0,
-        max_step_dt_s: float = 0.1,
-    ) -> LimitParams:
-        """Convert degrees to radians here, at the edge, and nowhere else."""
-        return cls(
-            max_steer_angle_rad=math.radians(limits.max_steer_angle_deg),
-            max_steer_rate_rad_per_s=math.radians(limits.max_steer_rate_deg_per_s),
-            throttle_min_pct=limits.throttle_min_pct,
-            throttle_max_pct=limits.throttle_max_pct,
-            max_throttle_rate_pct_per_s=limits.max_throttle_rate_pct_per_s,
-            brake_min_pct=limits.brake_min_pct,
-            brake_max_pct=limits.brake_max_pct,
-            max_speed_mps=limits.max_speed_mps,
-            steer_rate_fraction_at_max_speed=steer_rate_fraction_at_max_speed,
-            max_step_dt_s=max_step_dt_s,
-        )
 
     def steer_rate_limit_rad_per_s(self, speed_mps: float) -> float:
         """The steering rate allowed at this speed (direction of travel does not matter)."""

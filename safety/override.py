@@ -8,8 +8,8 @@ the wheel is back near the command. Pedals: a pedal pressed further than our act
 pulls it is the operator's foot, at once (a foot on the brake must not wait for a dwell).
 
 Everything is pure: no clock, no I/O; time comes in as ``now_s`` (monotonic seconds) and
-angles are tyre angles in radians, converted from the config's degrees once, in
-``from_config``.
+angles are tyre angles in radians, converted from the vehicle file's degrees once, in
+``appliance.config.parts``.
 """
 
 from __future__ import annotations
@@ -17,7 +17,6 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from appliance.config.models import Limits, SafetyTimeouts
 from safety.arbitration import OperatorInput
 
 
@@ -54,18 +53,6 @@ class SteeringOverrideParams:
             raise ValueError("dwell_s, min_torque_nm and stop_margin_rad must not be negative")
         if not self.max_steer_angle_rad > 0.0:
             raise ValueError("max_steer_angle_rad must be positive")
-
-    @classmethod
-    def from_config(cls, safety: SafetyTimeouts, limits: Limits) -> SteeringOverrideParams:
-        """Convert degrees to radians here, at the edge, and nowhere else."""
-        return cls(
-            threshold_rad=math.radians(safety.steer_override_threshold_deg),
-            release_rad=math.radians(safety.steer_override_release_deg),
-            dwell_s=safety.steer_override_dwell_s,
-            min_torque_nm=safety.steer_override_min_torque_nm,
-            stop_margin_rad=math.radians(safety.steer_stop_margin_deg),
-            max_steer_angle_rad=math.radians(limits.max_steer_angle_deg),
-        )
 
 
 class SteeringOverrideDetector:
@@ -175,10 +162,6 @@ class PedalOverrideParams:
         if not (math.isfinite(self.margin_pct) and self.margin_pct > 0.0):
             raise ValueError("margin_pct must be positive and finite")
 
-    @classmethod
-    def from_config(cls, safety: SafetyTimeouts) -> PedalOverrideParams:
-        return cls(margin_pct=safety.pedal_override_margin_pct)
-
 
 class PedalOverrideDetector:
     """True while the operator's foot is on the pedal (throttle or brake).
@@ -219,13 +202,6 @@ class OperatorOverride:
         self.steering = SteeringOverrideDetector(steering)
         self.brake = PedalOverrideDetector(pedal)
         self.throttle = PedalOverrideDetector(pedal)
-
-    @classmethod
-    def from_config(cls, safety: SafetyTimeouts, limits: Limits) -> OperatorOverride:
-        return cls(
-            SteeringOverrideParams.from_config(safety, limits),
-            PedalOverrideParams.from_config(safety),
-        )
 
     @property
     def steering_unknown(self) -> bool:

@@ -14,8 +14,6 @@ import math
 from dataclasses import dataclass
 from enum import StrEnum
 
-from appliance.config.models import Engagement, Limits, SafetyTimeouts
-
 
 class SafeKind(StrEnum):
     NONE = "none"  # not in a safe state: the brake is released
@@ -29,16 +27,6 @@ class SafeBrakeParams:
     estop_brake_pct: float
     ramp_pct_per_s: float
     max_step_dt_s: float = 0.1
-
-    @classmethod
-    def from_config(cls, safety: SafetyTimeouts, limits: Limits) -> SafeBrakeParams:
-        share = safety.safe_stop_decel_mps2 / safety.full_brake_decel_mps2
-        fault_pct = min(max(100.0 * share, limits.brake_min_pct), limits.brake_max_pct)
-        return cls(
-            fault_brake_pct=max(fault_pct, 1.0),  # never a "safe" state without brake
-            estop_brake_pct=limits.brake_max_pct,
-            ramp_pct_per_s=safety.safe_stop_brake_ramp_pct_per_s,
-        )
 
 
 class SafeBrake:
@@ -74,14 +62,6 @@ class SpeedRampParams:
     max_accel_mps2: float
     stop_distance_m: float
     max_step_dt_s: float = 0.1
-
-    @classmethod
-    def from_config(cls, engagement: Engagement, limits: Limits) -> SpeedRampParams:
-        return cls(
-            max_speed_mps=min(engagement.max_set_speed_mps, limits.max_speed_mps),
-            max_accel_mps2=engagement.max_accel_mps2,
-            stop_distance_m=engagement.hold_to_move_stop_distance_m,
-        )
 
 
 # The PC104's speed loop lags its set-point; aiming at a shorter distance than allowed

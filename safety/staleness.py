@@ -14,25 +14,6 @@ import math
 from collections.abc import Iterable, Mapping
 from types import MappingProxyType
 
-from appliance.config.models import Staleness
-
-
-def age_limits_from_config(staleness: Staleness) -> dict[str, float]:
-    """The per-input age limits, by the topic names the control loop uses."""
-    board_s = staleness.actuator_board_max_age_s
-    return {
-        "scan.left": staleness.scan_max_age_s,
-        "scan.right": staleness.scan_max_age_s,
-        "pose": staleness.pose_max_age_s,
-        "pc104.status": staleness.pc104_status_max_age_s,
-        "steering.pot": staleness.steering_pot_max_age_s,
-        "board.steering": board_s,
-        "board.throttle": board_s,
-        "board.brake": board_s,
-        "board.panel": staleness.panel_max_age_s,
-    }
-
-
 # Everything the vehicle needs to move safely under automatic control. The pose is
 # left out because until guidance exists nothing consumes it; a guidance issue adds it.
 DEFAULT_CRITICAL_INPUTS: tuple[str, ...] = (
@@ -67,12 +48,6 @@ class StalenessGuard:
             raise ValueError(f"age limits must be positive and finite: {bad}")
         self.age_limits_s: Mapping[str, float] = MappingProxyType(dict(age_limits_s))
         self.reset()
-
-    @classmethod
-    def from_config(
-        cls, staleness: Staleness, critical: Iterable[str] = DEFAULT_CRITICAL_INPUTS
-    ) -> StalenessGuard:
-        return cls(age_limits_from_config(staleness), critical)
 
     def reset(self) -> None:
         self.stale_since_s: dict[str, float] = {}

@@ -21,6 +21,7 @@ from __future__ import annotations
 import math
 from typing import Any
 
+from appliance.config import parts
 from appliance.config.models import VehicleConfig
 from appliance.core.autopilot import (
     AutopilotSource,
@@ -72,13 +73,10 @@ from drivers.actuators.messages import (
 )
 from drivers.pc104.messages import ControlSource, MotionCommand
 from safety.arbitration import OperatorInput, arbitrate
-from safety.consistency import CounterDeltas, ErrorBudget, SteeringTrackingMonitor
-from safety.consistency import SteeringTrackingParams as TrackingParams
+from safety.consistency import CounterDeltas, SteeringTrackingMonitor
 from safety.faults import FaultMonitor
-from safety.limits import ActuatorCommand, CommandLimiter, LimitParams
-from safety.override import OperatorOverride
-from safety.safe_state import SafeBrake, SafeBrakeParams, SafeKind, SpeedRamp, SpeedRampParams
-from safety.staleness import StalenessGuard
+from safety.limits import ActuatorCommand, CommandLimiter
+from safety.safe_state import SafeBrake, SafeKind, SpeedRamp
 
 BENCH_REQUESTS = (
     "engage",
@@ -123,15 +121,15 @@ class ControlCore:
             speed_step_mps=config.engagement.speed_step_mps,
             max_speed_mps=min(config.engagement.max_set_speed_mps, config.limits.max_speed_mps),
         )
-        self.staleness = StalenessGuard.from_config(config.staleness)
-        self.override = OperatorOverride.from_config(config.safety, config.limits)
-        self.tracking = SteeringTrackingMonitor(TrackingParams.from_config(config.safety))
-        self.link_budget = ErrorBudget.from_config(config.safety)
+        self.staleness = parts.staleness_guard(config.staleness)
+        self.override = parts.operator_override(config.safety, config.limits)
+        self.tracking = SteeringTrackingMonitor(parts.steering_tracking_params(config.safety))
+        self.link_budget = parts.error_budget(config.safety)
         self.link_deltas = CounterDeltas()
         self.faults = FaultMonitor()
-        self.limiter = CommandLimiter(LimitParams.from_config(config.limits))
-        self.brake = SafeBrake(SafeBrakeParams.from_config(config.safety, config.limits))
-        self.speed = SpeedRamp(SpeedRampParams.from_config(config.engagement, config.limits))
+        self.limiter = CommandLimiter(parts.limit_params(config.limits))
+        self.brake = SafeBrake(parts.safe_brake_params(config.safety, config.limits))
+        self.speed = SpeedRamp(parts.speed_ramp_params(config.engagement, config.limits))
         self.panel = PanelDecoder()
         self.reset()
 

@@ -7,16 +7,16 @@ from dataclasses import replace
 
 import pytest
 
+from appliance.config import parts
 from appliance.config.models import SafetyTimeouts
 from safety.consistency import (
     CounterDeltas,
     ErrorBudget,
     SteeringTrackingMonitor,
-    SteeringTrackingParams,
 )
 
 DEG = math.pi / 180.0
-TRACKING = SteeringTrackingParams.from_config(SafetyTimeouts())  # 3 deg for 0.5 s
+TRACKING = parts.steering_tracking_params(SafetyTimeouts())  # 3 deg for 0.5 s
 NON_FINITE = [math.nan, math.inf, -math.inf]
 
 
@@ -119,7 +119,7 @@ class TestSteeringTracking:
 
 class TestErrorBudget:
     def test_limit_comes_from_the_config(self) -> None:
-        assert ErrorBudget.from_config(SafetyTimeouts()).limit == 10
+        assert parts.error_budget(SafetyTimeouts()).limit == 10
 
     @pytest.mark.parametrize("limit", [0, -1, True, 2.5])
     def test_invalid_limit_is_refused(self, limit: int) -> None:

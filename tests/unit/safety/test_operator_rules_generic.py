@@ -16,6 +16,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from appliance.config import parts
 from appliance.config.models import Limits, SafetyTimeouts
 from safety.consistency import (
     CounterDeltas,
@@ -27,7 +28,6 @@ from safety.faults import HISTORY_LENGTH, FaultMonitor
 from safety.override import (
     OperatorOverride,
     PedalOverrideDetector,
-    PedalOverrideParams,
     SteeringOverrideDetector,
     SteeringOverrideParams,
 )
@@ -113,8 +113,8 @@ def steering_params(
 ) -> tuple[SteeringOverrideParams, SteeringTrackingParams]:
     """The rules' parameters (a config whose radians collapse raises ValueError)."""
     return (
-        SteeringOverrideParams.from_config(safety, limits),
-        SteeringTrackingParams.from_config(safety),
+        parts.steering_override_params(safety, limits),
+        parts.steering_tracking_params(safety),
     )
 
 
@@ -214,7 +214,7 @@ class TestSteeringProperties:
         safety = SafetyTimeouts(steer_override_release_deg=5e-324)
         assert radians_collapse(safety, Limits())
         with pytest.raises(ValueError, match="release_rad must be positive"):
-            SteeringOverrideParams.from_config(safety, Limits())
+            parts.steering_override_params(safety, Limits())
 
     @settings(max_examples=150, deadline=None)
     @given(steering_cases())
@@ -349,7 +349,7 @@ class TestPedalProperties:
     def test_pedal_override_is_the_foot_beyond_the_margin_or_a_non_finite_input(
         self, safety: SafetyTimeouts, cycles: list[tuple[float | None, float]]
     ) -> None:
-        params = PedalOverrideParams.from_config(safety)
+        params = parts.pedal_override_params(safety)
         detector = PedalOverrideDetector(params)
         for pedal_pct, actuator_pct in cycles:
             overriding = detector.update(pedal_pct, actuator_pct)
@@ -369,7 +369,7 @@ class TestPedalProperties:
         self, safety: SafetyTimeouts, limits: Limits, data: st.DataObject
     ) -> None:
         steering, tracking = steering_params(safety, limits)
-        operator = OperatorOverride(steering, PedalOverrideParams.from_config(safety))
+        operator = OperatorOverride(steering, parts.pedal_override_params(safety))
         monitor = SteeringTrackingMonitor(tracking)
         for _ in range(data.draw(st.integers(1, 10))):
             assert not_all_fine_with_one_bad_input(operator, monitor, data)

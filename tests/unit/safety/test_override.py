@@ -7,6 +7,7 @@ from dataclasses import replace
 
 import pytest
 
+from appliance.config import parts
 from appliance.config.models import Limits, SafetyTimeouts
 from safety.arbitration import OperatorInput
 from safety.override import (
@@ -14,12 +15,11 @@ from safety.override import (
     PedalOverrideDetector,
     PedalOverrideParams,
     SteeringOverrideDetector,
-    SteeringOverrideParams,
 )
 
 DEG = math.pi / 180.0
 # threshold 4 deg, release 2 deg, dwell 0.1 s, 8 N m, stop margin 1.5 deg, stops at 30 deg
-PARAMS = SteeringOverrideParams.from_config(SafetyTimeouts(), Limits())
+PARAMS = parts.steering_override_params(SafetyTimeouts(), Limits())
 TORQUE_NM = 10.0
 NON_FINITE = [math.nan, math.inf, -math.inf]
 
@@ -208,7 +208,7 @@ class TestSteeringOverride:
         assert not detector.update(0.0, 3 * DEG, TORQUE_NM, 0.12)  # hysteresis forgotten
 
 
-PEDAL = PedalOverrideParams.from_config(SafetyTimeouts())  # margin 8 %
+PEDAL = parts.pedal_override_params(SafetyTimeouts())  # margin 8 %
 
 
 class TestPedalOverride:
@@ -282,7 +282,7 @@ def operator_cycle(
 
 class TestOperatorOverride:
     def test_quiet_cycle_is_no_override(self) -> None:
-        operator = OperatorOverride.from_config(SafetyTimeouts(), Limits())
+        operator = parts.operator_override(SafetyTimeouts(), Limits())
         assert operator_cycle(operator) == OperatorInput()
         assert not operator.steering_unknown
 

@@ -13,13 +13,14 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from appliance.config import parts
 from appliance.config.models import Limits, Staleness
 from safety.arbitration import RELEASED, OperatorInput, arbitrate, safe_command
 from safety.limits import ActuatorCommand, CommandLimiter, LimitParams
-from safety.staleness import DEFAULT_CRITICAL_INPUTS, StalenessGuard, age_limits_from_config
+from safety.staleness import DEFAULT_CRITICAL_INPUTS, StalenessGuard
 
 DEG = math.pi / 180.0
-PARAMS = LimitParams.from_config(Limits())  # 30 deg, 20 deg/s, throttle 0..40 at 50 %/s
+PARAMS = parts.limit_params(Limits())  # 30 deg, 20 deg/s, throttle 0..40 at 50 %/s
 DT = 0.02
 
 
@@ -51,7 +52,7 @@ class TestAbsoluteLimits:
         assert (out.throttle_pct, violations) == (0.0, ("throttle_below_zero",))
 
     def test_brake_range(self) -> None:
-        params = LimitParams.from_config(Limits(brake_min_pct=5.0, brake_max_pct=80.0))
+        params = parts.limit_params(Limits(brake_min_pct=5.0, brake_max_pct=80.0))
         limiter = CommandLimiter(params)
         assert limiter.update(ActuatorCommand(None, 0, 99.0), 0, 0)[0].brake_pct == 80.0
         out, violations = limiter.update(ActuatorCommand(None, 0, 0.0), 0, DT)
@@ -82,7 +83,7 @@ class TestRateLimits:
         assert violations == ("steer_no_reference",)
 
     def test_speed_dependent_steer_rate(self) -> None:
-        params = LimitParams.from_config(Limits(), steer_rate_fraction_at_max_speed=0.5)
+        params = parts.limit_params(Limits(), steer_rate_fraction_at_max_speed=0.5)
         assert params.steer_rate_limit_rad_per_s(0.0) == pytest.approx(20 * DEG)
         assert params.steer_rate_limit_rad_per_s(-100.0) == pytest.approx(10 * DEG)
 
@@ -107,7 +108,7 @@ class TestRateLimits:
         )
 
     def test_throttle_minimum_is_reached_at_once_and_below_it_closes(self) -> None:
-        limiter = CommandLimiter(LimitParams.from_config(Limits(throttle_min_pct=10.0)))
+        limiter = CommandLimiter(parts.limit_params(Limits(throttle_min_pct=10.0)))
         limiter.update(ActuatorCommand(None, 0, 0), 0, 0.0)
         assert limiter.update(ActuatorCommand(None, 30.0, 0), 0, DT)[0].throttle_pct == 11.0
         assert limiter.update(ActuatorCommand(None, 5.0, 0), 0, 2 * DT)[0].throttle_pct == 0.0
@@ -138,11 +139,11 @@ class TestNonFinite:
         assert limiter.update(ActuatorCommand(0.1, 0, 0), 0, 2 * DT)[0].steer_angle_rad is None
 
 
-FRESH = {name: 0.0 for name in age_limits_from_config(Staleness())}
+FRESH = {name: 0.0 for name in parts.age_limits(Staleness())}
 
 
 class TestStaleness:
-    GUARD = StalenessGuard.from_config(Staleness())
+    GUARD = parts.staleness_guard(Staleness())
 
     def test_all_fresh_is_quiet(self) -> None:
         assert self.GUARD.update(FRESH, 0.0) == ()
@@ -250,7 +251,7 @@ def valid_limits(draw: st.DrawFn) -> Limits:
 
 @st.composite
 def valid_params(draw: st.DrawFn) -> LimitParams:
-    return LimitParams.from_config(
+    return parts.limit_params(
         draw(valid_limits()),
         steer_rate_fraction_at_max_speed=draw(st.floats(0.01, 1.0)),
         max_step_dt_s=draw(st.floats(0.001, 1.0)),

@@ -15,12 +15,11 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from appliance.config import load_config
+from appliance.config import load_config, parts
 from appliance.config.models import Engagement, Limits
 from safety.safe_state import (
     STOP_DISTANCE_MARGIN,
     SafeBrake,
-    SafeBrakeParams,
     SafeKind,
     SpeedRamp,
     SpeedRampParams,
@@ -40,11 +39,11 @@ FIRST_CYCLE_S = 0.02  # the ramp starts one nominal cycle in, so the first cycle
 
 
 def brake() -> SafeBrake:
-    return SafeBrake(SafeBrakeParams.from_config(SAFETY, LIMITS))
+    return SafeBrake(parts.safe_brake_params(SAFETY, LIMITS))
 
 
 def ramp() -> SpeedRamp:
-    return SpeedRamp(SpeedRampParams.from_config(ENGAGEMENT, LIMITS))
+    return SpeedRamp(parts.speed_ramp_params(ENGAGEMENT, LIMITS))
 
 
 def times(start_s: float = 0.0, dt_s: float = DT_S, count: int = 200) -> list[float]:
@@ -53,7 +52,7 @@ def times(start_s: float = 0.0, dt_s: float = DT_S, count: int = 200) -> list[fl
 
 # ---- SafeBrake ------------------------------------------------------------------------------
 def test_params_map_the_safe_stop_deceleration_to_a_brake_level() -> None:
-    params = SafeBrakeParams.from_config(SAFETY, LIMITS)
+    params = parts.safe_brake_params(SAFETY, LIMITS)
     assert params.fault_brake_pct == pytest.approx(FAULT_PCT)
     assert params.estop_brake_pct == LIMITS.brake_max_pct
     assert params.ramp_pct_per_s == RAMP
@@ -75,7 +74,7 @@ def test_fault_level_respects_the_brake_range(
     limits = LIMITS.model_copy(
         update={"brake_min_pct": brake_min_pct, "brake_max_pct": brake_max_pct}
     )
-    assert SafeBrakeParams.from_config(safety, limits).fault_brake_pct == expected_pct
+    assert parts.safe_brake_params(safety, limits).fault_brake_pct == expected_pct
 
 
 def test_no_safe_state_releases_the_brake() -> None:
@@ -208,7 +207,7 @@ def ramp_cases(draw: st.DrawFn) -> tuple[SpeedRampParams, float]:
         max_accel_mps2=draw(st.floats(0.0, 5.0, exclude_min=True)),
         hold_to_move_stop_distance_m=draw(st.floats(0.05, 20.0)),
     )
-    params = SpeedRampParams.from_config(
+    params = parts.speed_ramp_params(
         engagement, Limits(max_speed_mps=20.0, max_engage_speed_mps=4.5)
     )
     lowest_share = max(0.01, MIN_START_SPEED_MPS / params.max_speed_mps)

@@ -1,0 +1,117 @@
+"""The vehicle file, turned into each part's own parameters: the one place that reads it.
+
+Safety rules and drivers take small frozen parameters in radians and SI units and know
+nothing of the vehicle file; this module is where a degree becomes a radian, a rate
+becomes a period and a topic name meets its age limit, each conversion once. A reviewer
+who wants to know what ``limits.max_steer_angle_deg`` does to the vehicle reads this file
+and the rule it feeds, and nothing else.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable
+
+from appliance.config.models import Engagement, Limits, SafetyTimeouts, Staleness, VehicleConfig
+from drivers.pc104.client_core import ClientParams
+from safety.consistency import ErrorBudget, SteeringTrackingParams
+from safety.limits import LimitParams
+from safety.override import OperatorOverride, PedalOverrideParams, SteeringOverrideParams
+from safety.safe_state import SafeBrakeParams, SpeedRampParams
+from safety.staleness import DEFAULT_CRITICAL_INPUTS, StalenessGuard
+
+
+def limit_params(
+    limits: Limits, *, steer_rate_fraction_at_max_speed: float = 1.0, max_step_dt_s: float = 0.1
+) -> LimitParams:
+    return LimitParams(
+        max_steer_angle_rad=math.radians(limits.max_steer_angle_deg),
+        max_steer_rate_rad_per_s=math.radians(limits.max_steer_rate_deg_per_s),
+        throttle_min_pct=limits.throttle_min_pct,
+        throttle_max_pct=limits.throttle_max_pct,
+        max_throttle_rate_pct_per_s=limits.max_throttle_rate_pct_per_s,
+        brake_min_pct=limits.brake_min_pct,
+        brake_max_pct=limits.brake_max_pct,
+        max_speed_mps=limits.max_speed_mps,
+        steer_rate_fraction_at_max_speed=steer_rate_fraction_at_max_speed,
+        max_step_dt_s=max_step_dt_s,
+    )
+
+
+def steering_override_params(safety: SafetyTimeouts, limits: Limits) -> SteeringOverrideParams:
+    return SteeringOverrideParams(
+        threshold_rad=math.radians(safety.steer_override_threshold_deg),
+        release_rad=math.radians(safety.steer_override_release_deg),
+        dwell_s=safety.steer_override_dwell_s,
+        min_torque_nm=safety.steer_override_min_torque_nm,
+        stop_margin_rad=math.radians(safety.steer_stop_margin_deg),
+        max_steer_angle_rad=math.radians(limits.max_steer_angle_deg),
+    )
+
+
+def pedal_override_params(safety: SafetyTimeouts) -> PedalOverrideParams:
+    return PedalOverrideParams(margin_pct=safety.pedal_override_margin_pct)
+
+
+def operator_override(safety: SafetyTimeouts, limits: Limits) -> OperatorOverride:
+    return OperatorOverride(steering_override_params(safety, limits), pedal_override_params(safety))
+
+
+def steering_tracking_params(safety: SafetyTimeouts) -> SteeringTrackingParams:
+    return SteeringTrackingParams(
+        tolerance_rad=math.radians(safety.steer_tracking_tolerance_deg),
+        fault_after_s=safety.steer_tracking_fault_after_s,
+    )
+
+
+def error_budget(safety: SafetyTimeouts) -> ErrorBudget:
+    return ErrorBudget(safety.pc104_error_budget_limit)
+
+
+def safe_brake_params(safety: SafetyTimeouts, limits: Limits) -> SafeBrakeParams:
+    """The safe-stop deceleration as a brake level: its share of what full brake gives."""
+    share = safety.safe_stop_decel_mps2 / safety.full_brake_decel_mps2
+    fault_pct = min(max(100.0 * share, limits.brake_min_pct), limits.brake_max_pct)
+    return SafeBrakeParams(
+        fault_brake_pct=max(fault_pct, 1.0),  # never a "safe" state without brake
+        estop_brake_pct=limits.brake_max_pct,
+        ramp_pct_per_s=safety.safe_stop_brake_ramp_pct_per_s,
+    )
+
+
+def speed_ramp_params(engagement: Engagement, limits: Limits) -> SpeedRampParams:
+    return SpeedRampParams(
+        max_speed_mps=min(engagement.max_set_speed_mps, limits.max_speed_mps),
+        max_accel_mps2=engagement.max_accel_mps2,
+        stop_distance_m=engagement.hold_to_move_stop_distance_m,
+    )
+
+
+def age_limits(staleness: Staleness) -> dict[str, float]:
+    """The per-input age limits, by the topic names the control loop uses."""
+    board_s = staleness.actuator_board_max_age_s
+    return {
+        "scan.left": staleness.scan_max_age_s,
+        "scan.right": staleness.scan_max_age_s,
+        "pose": staleness.pose_max_age_s,
+        "pc104.status": staleness.pc104_status_max_age_s,
+        "steering.pot": staleness.steering_pot_max_age_s,
+        "board.steering": board_s,
+        "board.throttle": board_s,
+        "board.brake": board_s,
+        "board.panel": staleness.panel_max_age_s,
+    }
+
+
+def staleness_guard(
+    staleness: Staleness, critical: Iterable[str] = DEFAULT_CRITICAL_INPUTS
+) -> StalenessGuard:
+    return StalenessGuard(age_limits(staleness), critical)
+
+
+def pc104_client_params(config: VehicleConfig) -> ClientParams:
+    return ClientParams(
+        command_period_s=1.0 / config.rates.pc104_command_hz,
+        status_max_age_s=config.staleness.pc104_status_max_age_s,
+        command_timeout_s=config.safety.lower_layer_command_timeout_s,
+    )
