@@ -31,8 +31,10 @@ from typing import Any
 
 from appliance.config import VehicleConfig
 from appliance.config.loader import to_toml
-from appliance.config.models import SIM_PORT_PREFIX, CanEndpoint, CanInterface
+from appliance.config.models import CanEndpoint
 from appliance.logs import current_log_settings, get_logger
+from drivers.pc104.endpoint import CanInterface
+from drivers.ptylink import SIM_PORT_PREFIX
 
 log = get_logger("sim_process")
 

@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 import can as can_lib
 
 from appliance.config import VehicleConfig
-from appliance.config.models import CanEndpoint, CanInterface, ColaDialect
+from appliance.config.models import CanEndpoint, ColaDialect
 from appliance.sim.site_file import load_site
 from appliance.sim.vehicle import VehicleParams, VehicleState
 from appliance.sim.world import SimWorld
@@ -30,6 +30,7 @@ from drivers.lms111 import Dialect
 from drivers.lms111.mounted import mount_pose
 from drivers.lms111.twin import Lms111Twin
 from drivers.pc104 import protocol
+from drivers.pc104.endpoint import CanInterface
 from drivers.pc104.link import BusFactory, bus_factory
 from drivers.pc104.slcan import SlcanAdapterBus
 from drivers.pc104.twin import Pc104Twin

@@ -21,8 +21,8 @@ from collections.abc import Awaitable, Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-from appliance.config import VehicleConfig
-from appliance.config.models import CanInterface, SimPlacement
+from appliance.config import VehicleConfig, parts
+from appliance.config.models import SimPlacement
 from appliance.core.core import CoreOutput
 from appliance.core.inputs import LinkCounts
 from appliance.logs import get_logger
@@ -43,6 +43,7 @@ from drivers.lms111.client import Lms111Client
 from drivers.lms111.mounted import MountedScan
 from drivers.lms111.session import Lms111ConfigError
 from drivers.pc104.client import Pc104Client
+from drivers.pc104.endpoint import CanInterface
 from drivers.pc104.messages import MotionCommand, MotionPattern
 from drivers.topics import Topic
 from safety.safe_stop import SafeCommand, SafeStopTarget
@@ -178,7 +179,7 @@ class Pc104SafeStop:
 
 def _build_pc104(config: VehicleConfig, io: VehicleIO, policy: RestartPolicy) -> None:
     """The PC104 link (critical: it is how the vehicle's own controller hears us)."""
-    client = Pc104Client(config)
+    client = Pc104Client(parts.pc104_client_params(config), config.devices.can)
     client.before_decode = io.work_slot.clear
     io.pc104 = client
     for topic in (

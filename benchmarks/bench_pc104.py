@@ -22,12 +22,13 @@ import uuid
 
 import can
 
-from appliance.config import load_config
-from appliance.config.models import CanEndpoint, CanInterface
+from appliance.config import load_config, parts
+from appliance.config.models import CanEndpoint
 from appliance.timing import FixedRateTicker
 from benchmarks.stats import summarize
 from drivers.pc104 import protocol
 from drivers.pc104.client import Pc104Client
+from drivers.pc104.endpoint import CanInterface
 from drivers.pc104.link import bus_factory
 from drivers.pc104.messages import ControlSource, MotionCommand, MotionPattern, Pc104Status
 from drivers.pc104.monitor import MonitorParams, ReceiveMonitor
@@ -110,7 +111,9 @@ async def bench_loaded_bus() -> list[str]:
     drainer.join()
     sink.shutdown()
 
-    client = Pc104Client(load_config("sim"), open_bus=bus_factory(endpoint))
+    client = Pc104Client(
+        parts.pc104_client_params(load_config("sim")), endpoint, open_bus=bus_factory(endpoint)
+    )
     runner = asyncio.create_task(client.run(lambda: None))
     await asyncio.sleep(0.2)
     generator = LoadGenerator(channel)
@@ -160,7 +163,9 @@ async def bench_loaded_bus() -> list[str]:
 async def bench_staleness(trials: int = 25) -> str:
     channel = f"bench-{uuid.uuid4().hex[:8]}"
     endpoint = CanEndpoint(interface=CanInterface.VIRTUAL, channel=channel)
-    client = Pc104Client(load_config("sim"), open_bus=bus_factory(endpoint))
+    client = Pc104Client(
+        parts.pc104_client_params(load_config("sim")), endpoint, open_bus=bus_factory(endpoint)
+    )
     runner = asyncio.create_task(client.run(lambda: None))
     bus = can.Bus(interface="virtual", channel=channel)
     monitor = client.monitors[STATUS_ID]

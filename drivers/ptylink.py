@@ -16,6 +16,10 @@ import fcntl
 import os
 import tty
 
+# How a vehicle file names a simulated board's port (``sim://steering``) until the twin's
+# pty stands behind it; a client is only ever given the resolved tty path.
+SIM_PORT_PREFIX = "sim://"
+
 
 class PtyLink:
     """The device's end of a simulated serial cable."""

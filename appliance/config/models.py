@@ -15,6 +15,9 @@ from typing import Annotated, Self
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
+from drivers.pc104.endpoint import SLCAN_BITRATES_BPS, CanInterface
+from drivers.ptylink import SIM_PORT_PREFIX
+
 
 class _Model(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True, validate_default=True)
@@ -134,28 +137,6 @@ class Lms111Endpoint(_Model):
         return self
 
 
-class CanInterface(StrEnum):
-    SOCKETCAN = "socketcan"  # the vehicle, and vcan in HIL tests
-    # A USB-CAN adapter speaking SLCAN on a serial port (channel: the tty); also how the
-    # built-in simulated vehicle's own process reaches the daemon.
-    SLCAN = "slcan"
-    VIRTUAL = "virtual"  # python-can's in-process bus: unit tests and an inline simulation
-
-
-# The bit rates an SLCAN adapter can be told (Lawicel S0..S8).
-SLCAN_BITRATES_BPS = (
-    10_000,
-    20_000,
-    50_000,
-    100_000,
-    125_000,
-    250_000,
-    500_000,
-    750_000,
-    1_000_000,
-)
-
-
 class CanEndpoint(_Model):
     """The link to the vehicle's PC104 lower-level controller."""
 
@@ -171,9 +152,6 @@ class CanEndpoint(_Model):
                 + ", ".join(str(b) for b in SLCAN_BITRATES_BPS)
             )
         return self
-
-
-SIM_PORT_PREFIX = "sim://"
 
 
 class SerialEndpoint(_Model):

@@ -12,7 +12,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
-from appliance.config.models import SIM_PORT_PREFIX, VehicleConfig
+from appliance.config.models import VehicleConfig
 from drivers.actuators.client import DEFAULT_COMMAND_PERIOD_S, ActuatorClient
 from drivers.actuators.messages import (
     BrakeTelemetry,
@@ -20,6 +20,7 @@ from drivers.actuators.messages import (
     SteeringTelemetry,
     ThrottleTelemetry,
 )
+from drivers.ptylink import SIM_PORT_PREFIX
 
 
 @dataclass(frozen=True)

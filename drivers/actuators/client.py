@@ -33,7 +33,6 @@ import serial  # type: ignore[import-untyped]
 import structlog
 from structlog.typing import FilteringBoundLogger
 
-from appliance.config.models import SIM_PORT_PREFIX
 from drivers.actuators.framing import ActuatorProtocolError
 from drivers.actuators.messages import (
     BOARD_MESSAGES,
@@ -44,6 +43,7 @@ from drivers.actuators.messages import (
     encode_payload,
 )
 from drivers.actuators.protocol import NEED_DATA, ActuatorCodec, Role
+from drivers.ptylink import SIM_PORT_PREFIX
 from drivers.topics import Topic
 from drivers.wakeup import Wakeup
 

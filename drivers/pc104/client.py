@@ -32,7 +32,6 @@ import can
 import structlog
 from structlog.typing import FilteringBoundLogger
 
-from appliance.config.models import VehicleConfig
 from drivers.pc104 import protocol
 from drivers.pc104.client_core import (
     ClientParams,
@@ -41,6 +40,7 @@ from drivers.pc104.client_core import (
     RateMeter,
     command_to_send,
 )
+from drivers.pc104.endpoint import BusEndpoint
 from drivers.pc104.errorframes import BusCondition, bus_condition
 from drivers.pc104.link import BusFactory, BusLink, Episode, LinkLost, bus_factory, next_deadline
 from drivers.pc104.messages import (
@@ -68,19 +68,18 @@ class Pc104Client:
 
     def __init__(
         self,
-        config: VehicleConfig,
+        params: ClientParams,
+        endpoint: BusEndpoint,
         *,
         topics: Pc104Topics | None = None,
         open_bus: BusFactory | None = None,
         clock: Callable[[], float] = time.monotonic,
-        params: ClientParams | None = None,
     ) -> None:
-        self.params = params if params is not None else ClientParams.from_config(config)
+        """``open_bus`` replaces opening ``endpoint`` (tests hand in their own bus)."""
+        self.params = params
         self.topics = topics if topics is not None else Pc104Topics.create()
         self._open_bus = (
-            open_bus
-            if open_bus is not None
-            else bus_factory(config.devices.can, protocol.PC104_IDS)
+            open_bus if open_bus is not None else bus_factory(endpoint, protocol.PC104_IDS)
         )
         self._clock = clock
         # Awaited before a batch of received frames is decoded: the runtime keeps that

@@ -8,7 +8,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from appliance.config.models import VehicleConfig
 from drivers.pc104.errorframes import BusCondition
 from drivers.pc104.messages import (
     ControlSource,
@@ -51,14 +50,6 @@ class ClientParams:
     reopen_backoff_factor: float = 2.0
     reopen_backoff_cap_s: float = 1.0
     bus_state_poll_s: float = 1.0
-
-    @classmethod
-    def from_config(cls, config: VehicleConfig) -> ClientParams:
-        return cls(
-            command_period_s=1.0 / config.rates.pc104_command_hz,
-            status_max_age_s=config.staleness.pc104_status_max_age_s,
-            command_timeout_s=config.safety.lower_layer_command_timeout_s,
-        )
 
 
 @dataclass(frozen=True)

@@ -32,7 +32,7 @@ from typing import Any
 import can
 from can.interfaces.virtual import VirtualBus
 
-from appliance.config.models import CanEndpoint, CanInterface
+from drivers.pc104.endpoint import BusEndpoint, CanInterface
 from drivers.pc104.slcan import SlcanHostBus
 from drivers.wakeup import Wakeup
 
@@ -49,7 +49,7 @@ class LinkLost(Exception):
     """The bus failed in a way that only closing and reopening it can fix."""
 
 
-def bus_factory(endpoint: CanEndpoint, receive_ids: Iterable[int] = ()) -> BusFactory:
+def bus_factory(endpoint: BusEndpoint, receive_ids: Iterable[int] = ()) -> BusFactory:
     """Open the configured bus. On socketcan the kernel filters for ``receive_ids`` (error
     frames still pass: they come through CAN_RAW_ERR_FILTER); the bitrate is the
     interface's business (systemd-networkd), not ours. On ``virtual`` python-can filters

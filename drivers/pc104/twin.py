@@ -26,12 +26,13 @@ from collections.abc import Callable, Sequence
 import can
 
 from appliance.config import load_config
-from appliance.config.models import CanEndpoint, CanInterface
+from appliance.config.models import CanEndpoint
 from appliance.logs import configure_logging, get_logger
 from appliance.sim.vehicle import VehicleParams
 from appliance.sim.world import SimWorld
 from appliance.timing import FixedRateTicker
 from drivers.pc104 import protocol
+from drivers.pc104.endpoint import CanInterface
 from drivers.pc104.link import BusFactory, BusLink, Episode, LinkLost, bus_factory
 from drivers.pc104.twin_core import OutFrame, Pc104TwinCore, TwinFaults, TwinParams
 

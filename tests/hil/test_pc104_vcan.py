@@ -26,10 +26,11 @@ from pathlib import Path
 import cantools
 import pytest
 
-from appliance.config import load_config
-from appliance.config.models import CanEndpoint, CanInterface, VehicleConfig
+from appliance.config import load_config, parts
+from appliance.config.models import CanEndpoint, VehicleConfig
 from drivers.pc104 import protocol
 from drivers.pc104.client import Pc104Client
+from drivers.pc104.endpoint import CanInterface
 from drivers.pc104.messages import ControlSource, MotionCommand, MotionPattern, Pc104Status
 
 pytestmark = pytest.mark.vcan
@@ -157,7 +158,8 @@ async def test_client_and_twin_process_over_vcan(vcan_channel: str, tmp_path: Pa
             stdout=subprocess.DEVNULL,
             stderr=twin_err,
         )
-    client = Pc104Client(vcan_config(vcan_channel))
+    config = vcan_config(vcan_channel)
+    client = Pc104Client(parts.pc104_client_params(config), config.devices.can)
     runner = asyncio.create_task(client.run(lambda: None))
 
     def detail() -> str:

@@ -23,11 +23,12 @@ import pytest
 from can.interfaces.virtual import VirtualBus
 from structlog.testing import capture_logs
 
-from appliance.config import load_config
-from appliance.config.models import CanEndpoint, CanInterface
+from appliance.config import load_config, parts
+from appliance.config.models import CanEndpoint
 from appliance.sim.vehicle import VehicleParams
 from appliance.sim.world import SimWorld
 from drivers.pc104.client import Pc104Client
+from drivers.pc104.endpoint import CanInterface
 from drivers.pc104.errorframes import BusCondition
 from drivers.pc104.link import bus_factory
 from drivers.pc104.messages import ControlSource, MotionCommand, MotionPattern, Pc104Status
@@ -84,7 +85,9 @@ class Rig:
                 switch.opened += 1
                 return FlakyBus(self.channel, switch)
 
-        self.client = Pc104Client(self.config, open_bus=open_bus)
+        self.client = Pc104Client(
+            parts.pc104_client_params(self.config), self.config.devices.can, open_bus=open_bus
+        )
         self.beats: list[float] = []
         self.tasks: list[asyncio.Task[None]] = []
 

@@ -11,7 +11,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from appliance.config import BUILTIN_PROFILES, ConfigError, VehicleConfig, load_config, parse_config
-from appliance.config.models import CanInterface, VehicleKind
+from appliance.config.models import VehicleKind
+from drivers.pc104.endpoint import CanInterface
 
 
 @pytest.mark.parametrize("name", BUILTIN_PROFILES)
