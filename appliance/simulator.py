@@ -21,19 +21,19 @@ import can as can_lib
 from appliance.config import VehicleConfig
 from appliance.config.models import CanEndpoint, ColaDialect
 from appliance.sim.site_file import load_site
+from appliance.sim.twins.board_set import ActuatorTwins
+from appliance.sim.twins.lms111 import Lms111Twin
+from appliance.sim.twins.pc104 import Pc104Twin
 from appliance.sim.vehicle import VehicleParams, VehicleState
 from appliance.sim.world import SimWorld
 from appliance.supervisor import ServiceSpec, beating_service
-from drivers.actuators.twin_set import ActuatorTwins
 from drivers.geometry import Pose2D
 from drivers.lms111 import Dialect
 from drivers.lms111.mounted import mount_pose
-from drivers.lms111.twin import Lms111Twin
 from drivers.pc104 import protocol
 from drivers.pc104.endpoint import CanInterface
 from drivers.pc104.link import BusFactory, bus_factory
 from drivers.pc104.slcan import SlcanAdapterBus
-from drivers.pc104.twin import Pc104Twin
 from safety.watchdog import RestartPolicy
 
 TWIN_HEARTBEAT_DEADLINE_S = 1.0

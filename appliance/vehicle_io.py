@@ -21,6 +21,7 @@ from collections.abc import Awaitable, Callable
 from dataclasses import dataclass, field
 from typing import Any
 
+from appliance.board_clients import BoardClients, make_board_clients
 from appliance.config import VehicleConfig, parts
 from appliance.config.models import SimPlacement
 from appliance.core.core import CoreOutput
@@ -31,7 +32,6 @@ from appliance.simulator import Simulator, build_simulator, lms111_dialect
 from appliance.supervisor import PermanentServiceError, ServiceSpec, beating_service
 from appliance.timing import ControlSlot
 from appliance.topics import TopicRegistry
-from drivers.actuators.boards import BoardClients, make_board_clients
 from drivers.actuators.client import ActuatorClient
 from drivers.actuators.messages import (
     BrakeCommand,

@@ -22,6 +22,7 @@ from multiprocessing.connection import Connection
 from typing import Any, TypeVar
 
 from appliance.config import load_config
+from appliance.sim.twins.board_set import ActuatorTwins
 from appliance.sim.vehicle import VehicleParams
 from appliance.sim.world import SimWorld
 from benchmarks.stats import summarize
@@ -39,7 +40,6 @@ from drivers.actuators.messages import (
     ThrottleTelemetry,
 )
 from drivers.actuators.protocol import ActuatorCodec
-from drivers.actuators.twin_set import ActuatorTwins
 from drivers.topics import Sample, Topic
 
 T = TypeVar("T")

@@ -51,7 +51,7 @@ def _twin_process(pipe: Connection, dialect: Dialect) -> None:
 
 async def _serve_twins(pipe: Connection, dialect: Dialect) -> None:
     from appliance.sim import Pose2D, load_site
-    from drivers.lms111.twin import Lms111Twin
+    from appliance.sim.twins.lms111 import Lms111Twin
 
     site = load_site("launcher")
 

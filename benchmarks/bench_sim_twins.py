@@ -33,17 +33,17 @@ import numpy.typing as npt
 
 from appliance.config import load_config
 from appliance.sim import Pose2D, load_site
+from appliance.sim.twins.lms111 import Lms111Twin
+from appliance.sim.twins.pc104_core import Pc104TwinCore
 from appliance.sim.vehicle import VehicleParams
 from appliance.sim.world import SimWorld
 from benchmarks.stats import summarize
 from drivers.lms111 import Dialect, Lms111Connection
 from drivers.lms111.mounted import mount_pose
 from drivers.lms111.replies import ScanConfig
-from drivers.lms111.twin import Lms111Twin
 from drivers.lms111.twin_device import DeviceModel
 from drivers.pc104 import protocol
 from drivers.pc104.messages import MotionCommand, MotionPattern
-from drivers.pc104.twin_core import Pc104TwinCore
 
 WARMUP = 100
 SAMPLES = 2000

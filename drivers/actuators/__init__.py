@@ -1,9 +1,10 @@
 """Serial actuator boards: steering servo (with the steering pot), throttle, brake, panel.
 
 ``framing``/``messages``/``protocol`` are the sans-I/O core (docs/protocols/actuator-boards.md),
-``client`` the asyncio transport with staleness and reconnect, ``boards`` the four clients of
-a vehicle profile; ``twin``/``twin_boards``/``twin_set`` the simulated boards on
-pseudo-terminals and ``steering_model`` the servo and pot physics they use.
+``client`` the asyncio transport with staleness and reconnect, ``twin`` a simulated board on a
+pseudo-terminal (its protocol side) and ``steering_model`` the servo and pot physics. The
+runtime wires the four clients of a vehicle profile (``appliance.board_clients``); the four
+boards wired to the simulated world live with the simulator (``appliance.sim.twins``).
 """
 
 from drivers.actuators.framing import ActuatorProtocolError

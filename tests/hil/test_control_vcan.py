@@ -47,14 +47,14 @@ from appliance.config import VehicleConfig, load_config
 from appliance.config.loader import to_toml
 from appliance.config.models import CanEndpoint
 from appliance.control_socket import ControlSocketError, query
+from appliance.sim.twins.board_set import ActuatorTwins
+from appliance.sim.twins.pc104_core import Pc104TwinCore, TwinParams
 from appliance.simulator import Simulator, build_simulator
 from appliance.supervisor import Supervisor
 from calibration.calfile import write_calibration
 from calibration.simulated import simulated_calibration
-from drivers.actuators.twin_set import ActuatorTwins
 from drivers.pc104 import protocol
 from drivers.pc104.endpoint import CanInterface
-from drivers.pc104.twin_core import Pc104TwinCore, TwinParams
 from safety.watchdog import RestartPolicy
 from tests.hil.test_pc104_vcan import crc8_sae_j1850_bitwise
 

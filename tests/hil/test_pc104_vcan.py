@@ -151,7 +151,7 @@ async def test_client_and_twin_process_over_vcan(vcan_channel: str, tmp_path: Pa
         twin = await asyncio.create_subprocess_exec(
             sys.executable,
             "-m",
-            "drivers.pc104.twin",
+            "appliance.sim.twins.pc104",
             "--channel",
             vcan_channel,
             cwd=PROJECT_ROOT,

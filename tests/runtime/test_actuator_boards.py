@@ -17,10 +17,11 @@ from typing import Any
 import pytest
 from structlog.testing import capture_logs
 
+from appliance.board_clients import BoardClients, make_board_clients
 from appliance.config import load_config
+from appliance.sim.twins.board_set import ActuatorTwins
 from appliance.sim.vehicle import VehicleParams
 from appliance.sim.world import SimWorld
-from drivers.actuators.boards import BoardClients, make_board_clients
 from drivers.actuators.client import ActuatorClient
 from drivers.actuators.messages import (
     BoardKind,
@@ -37,7 +38,6 @@ from drivers.actuators.messages import (
     SteeringTelemetry,
     ThrottleCommand,
 )
-from drivers.actuators.twin_set import ActuatorTwins
 
 CONFIG = load_config("sim")
 TIMEOUT_S = CONFIG.safety.lower_layer_command_timeout_s

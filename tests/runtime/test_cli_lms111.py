@@ -8,8 +8,8 @@ import sys
 from pathlib import Path
 
 from appliance.sim.site_file import load_site
+from appliance.sim.twins.lms111 import Lms111Twin
 from drivers.geometry import Pose2D
-from drivers.lms111.twin import Lms111Twin
 
 
 async def dbw(*args: str) -> tuple[int, str, str]:

@@ -37,6 +37,9 @@ from appliance.control_socket import query
 from appliance.core.core import CoreOutput
 from appliance.daemon import Daemon, RunResult
 from appliance.modes import Mode
+from appliance.sim.twins.board_set import ActuatorTwins
+from appliance.sim.twins.lms111 import Lms111Twin
+from appliance.sim.twins.pc104 import Pc104Twin
 from appliance.sim.world import SimWorld
 from appliance.supervisor import ServiceState
 from drivers.actuators.messages import (
@@ -45,11 +48,8 @@ from drivers.actuators.messages import (
     Lamps,
     SteeringMode,
 )
-from drivers.actuators.twin_set import ActuatorTwins
-from drivers.lms111.twin import Lms111Twin
 from drivers.pc104 import protocol
 from drivers.pc104.messages import HighLevelState, HlHeartbeat, MotionPattern
-from drivers.pc104.twin import Pc104Twin
 from tests.runtime.inline import inline_sim
 from tools.fake_notify import FakeNotifySocket
 

@@ -25,11 +25,11 @@ from structlog.testing import capture_logs
 
 from appliance.config.models import Lms111Endpoint, SensorMount
 from appliance.sim import Circle, Pose2D, Segment, Site, load_site
+from appliance.sim.twins.lms111 import Lms111Twin, TwinFaults
 from drivers.lms111 import Dialect
 from drivers.lms111.client import Lms111Client, Lms111ConfigError, Lms111LoginError
 from drivers.lms111.handshake import probe
 from drivers.lms111.mounted import MountedScan, mount_pose
-from drivers.lms111.twin import Lms111Twin, TwinFaults
 from drivers.topics import Sample, Topic
 
 LEFT_MOUNT = SensorMount(x_m=4.5, y_m=1.1, yaw_deg=45.0)

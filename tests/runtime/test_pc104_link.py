@@ -25,6 +25,7 @@ from structlog.testing import capture_logs
 
 from appliance.config import load_config, parts
 from appliance.config.models import CanEndpoint
+from appliance.sim.twins.pc104 import Pc104Twin
 from appliance.sim.vehicle import VehicleParams
 from appliance.sim.world import SimWorld
 from drivers.pc104.client import Pc104Client
@@ -32,7 +33,6 @@ from drivers.pc104.endpoint import CanInterface
 from drivers.pc104.errorframes import BusCondition
 from drivers.pc104.link import bus_factory
 from drivers.pc104.messages import ControlSource, MotionCommand, MotionPattern, Pc104Status
-from drivers.pc104.twin import Pc104Twin
 from drivers.topics import Topic
 
 pytestmark = pytest.mark.timeout(30)

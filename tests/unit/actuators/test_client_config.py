@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import pytest
 
+from appliance.board_clients import make_board_clients
 from appliance.config import load_config
-from drivers.actuators.boards import make_board_clients
 from drivers.actuators.client import ActuatorClient
 from drivers.actuators.framing import ActuatorProtocolError
 from drivers.actuators.messages import (

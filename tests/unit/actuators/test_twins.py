@@ -11,6 +11,8 @@ from collections.abc import Iterator
 import pytest
 
 from appliance.config import load_config
+from appliance.sim.twins.board_set import ActuatorTwins
+from appliance.sim.twins.boards import HOST_LOST_TEXT
 from appliance.sim.vehicle import VehicleParams
 from appliance.sim.world import SimWorld
 from drivers.actuators.framing import ActuatorProtocolError
@@ -32,8 +34,6 @@ from drivers.actuators.messages import (
     ThrottleTelemetry,
 )
 from drivers.actuators.protocol import NEED_DATA, ActuatorCodec, Role
-from drivers.actuators.twin_boards import HOST_LOST_TEXT
-from drivers.actuators.twin_set import ActuatorTwins
 
 
 class Host:

@@ -23,6 +23,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from appliance.sim import Pose2D, load_site
+from appliance.sim.twins.lms111 import Lms111Twin
 from drivers.lms111 import (
     Channel,
     CommandType,
@@ -40,7 +41,6 @@ from drivers.lms111 import (
 from drivers.lms111.cola import parse_telegram
 from drivers.lms111.framing import Telegram
 from drivers.lms111.replies import ScanConfig
-from drivers.lms111.twin import Lms111Twin
 from drivers.lms111.twin_device import DeviceModel
 from drivers.lms111.values import (
     F32,

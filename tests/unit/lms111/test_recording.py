@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from appliance.sim import Pose2D, load_site
+from appliance.sim.twins.lms111 import Lms111Twin, TwinFaults
 from drivers.lms111 import Dialect, Scan
 from drivers.lms111.recording import (
     RECORD_HEADER,
@@ -29,7 +30,6 @@ from drivers.lms111.recording import (
     scan_summary,
     summarize_recording,
 )
-from drivers.lms111.twin import Lms111Twin, TwinFaults
 
 
 @pytest.fixture

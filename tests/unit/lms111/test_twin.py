@@ -11,6 +11,7 @@ import numpy.typing as npt
 import pytest
 
 from appliance.sim import Pose2D, load_site
+from appliance.sim.twins.lms111 import Lms111Twin
 from drivers.lms111 import (
     NEED_DATA,
     Command,
@@ -41,7 +42,6 @@ from drivers.lms111 import (
     subscribe,
 )
 from drivers.lms111.session import Lms111LinkError, Lms111Session
-from drivers.lms111.twin import Lms111Twin
 from drivers.lms111.twin_device import DeviceModel, PeerState, rssi_digits
 
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from appliance.config import load_config
+from appliance.sim.twins.pc104_core import OutFrame, Pc104TwinCore, PidSpeedController, TwinFaults
 from appliance.sim.vehicle import VehicleParams
 from appliance.sim.world import SimWorld
 from drivers.pc104 import protocol
@@ -14,7 +15,6 @@ from drivers.pc104.messages import (
     Pc104Status,
     WheelAngles,
 )
-from drivers.pc104.twin_core import OutFrame, Pc104TwinCore, PidSpeedController, TwinFaults
 
 TICK_S = 0.005
 STATUS_ID = protocol.spec_for(Pc104Status).frame_id

@@ -16,6 +16,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from appliance.config import load_config
+from appliance.sim.twins.pc104_core import OutFrame, Pc104TwinCore, TwinFaults
 from appliance.sim.vehicle import VehicleParams
 from appliance.sim.world import SimWorld
 from drivers.pc104 import protocol
@@ -28,7 +29,6 @@ from drivers.pc104.messages import (
     Pc104Message,
     WheelAngles,
 )
-from drivers.pc104.twin_core import OutFrame, Pc104TwinCore, TwinFaults
 
 TICK_S = 0.005
 PARAMS = VehicleParams.from_config(load_config("sim"))

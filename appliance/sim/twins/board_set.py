@@ -18,10 +18,10 @@ from collections.abc import Callable
 from typing import Any
 
 from appliance.config.models import VehicleConfig
+from appliance.sim.twins.boards import BrakeTwin, PanelTwin, SteeringTwin, ThrottleTwin
 from appliance.sim.world import SimWorld
 from drivers.actuators.steering_model import PotMapping, ServoParams
 from drivers.actuators.twin import BoardTwin
-from drivers.actuators.twin_boards import BrakeTwin, PanelTwin, SteeringTwin, ThrottleTwin
 from drivers.ptylink import SIM_PORT_PREFIX
 
 

@@ -1,10 +1,10 @@
 """The PC104 twin on a python-can bus: the simulated controller as a CAN node.
 
-:class:`Pc104Twin` runs :class:`~drivers.pc104.twin_core.Pc104TwinCore` on any python-can
+:class:`Pc104Twin` runs :class:`~appliance.sim.twins.pc104_core.Pc104TwinCore` on any python-can
 bus: in the daemon's process on ``virtual`` (the built-in simulation and the runtime
 tests), or as a separate process on socketcan/vcan for hardware-in-the-loop tests::
 
-    python -m drivers.pc104.twin --interface socketcan --channel vcan0 [--seconds N]
+    python -m appliance.sim.twins.pc104 --interface socketcan --channel vcan0 [--seconds N]
 
 It keeps ticking through link failures, like a real controller whose cable was pulled:
 the vehicle goes on being simulated (and braked once commands stop) while the bus is
@@ -28,13 +28,13 @@ import can
 from appliance.config import load_config
 from appliance.config.models import CanEndpoint
 from appliance.logs import configure_logging, get_logger
+from appliance.sim.twins.pc104_core import OutFrame, Pc104TwinCore, TwinFaults, TwinParams
 from appliance.sim.vehicle import VehicleParams
 from appliance.sim.world import SimWorld
 from appliance.timing import FixedRateTicker
 from drivers.pc104 import protocol
 from drivers.pc104.endpoint import CanInterface
 from drivers.pc104.link import BusFactory, BusLink, Episode, LinkLost, bus_factory
-from drivers.pc104.twin_core import OutFrame, Pc104TwinCore, TwinFaults, TwinParams
 
 log = get_logger("pc104.twin")
 
@@ -139,7 +139,7 @@ class Pc104Twin:
 
 def _parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(
-        prog="python -m drivers.pc104.twin",
+        prog="python -m appliance.sim.twins.pc104",
         description="Run the simulated PC104 controller with its own simulated vehicle.",
     )
     parser.add_argument("--interface", choices=[i.value for i in CanInterface], default="socketcan")
