@@ -15,15 +15,14 @@ import sys
 import click
 
 from appliance.config import BUILTIN_PROFILES, ConfigError, VehicleConfig, load_config
-from calibration.calfile import (
-    Calibration,
+from appliance.config.calibration import Calibration, CalibrationFile
+from appliance.config.calibration_file import (
     CalibrationError,
-    CalibrationFile,
     dumps_calibration,
     read_calibration_file,
     write_calibration,
 )
-from calibration.simulated import simulated_calibration
+from appliance.config.simulated_calibration import simulated_calibration
 
 # Repeated from appliance.cli, which imports this module: importing it back is a cycle.
 EXIT_CONFIG_ERROR = 2

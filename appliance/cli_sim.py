@@ -18,13 +18,14 @@ import click
 import structlog
 
 from appliance.config import ConfigError, VehicleConfig, load_config
+from appliance.config.atomic import write_text_atomic
+from appliance.config.calibration_file import write_calibration
 from appliance.config.loader import to_toml
 from appliance.config.models import CanEndpoint
+from appliance.config.simulated_calibration import simulated_calibration
 from appliance.logs import get_logger
 from appliance.simulator import Simulator, build_simulator
 from appliance.supervisor import Supervisor
-from calibration.calfile import write_calibration, write_text_atomic
-from calibration.simulated import simulated_calibration
 from drivers.pc104.endpoint import CanInterface
 from safety.watchdog import RestartPolicy
 

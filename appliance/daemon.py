@@ -23,6 +23,8 @@ from dataclasses import dataclass
 from typing import Any
 
 from appliance.config import VehicleConfig
+from appliance.config.calibration import Calibration
+from appliance.config.calibration_file import CalibrationError, load_calibration
 from appliance.control_loop import ControlLoop, OperatorWatch, TopicInputs
 from appliance.control_socket import ControlServer
 from appliance.core.autopilot import AutopilotSource
@@ -41,7 +43,6 @@ from appliance.vehicle_io import (
     link_summary,
     pc104_link_counts,
 )
-from calibration.calfile import Calibration, CalibrationError, load_calibration
 from drivers.topics import Topic
 from safety.safe_stop import SafeCommand, SafeStop
 from safety.watchdog import RestartPolicy

@@ -22,6 +22,7 @@ import math
 from typing import Any
 
 from appliance.config import parts
+from appliance.config.calibration import Calibration
 from appliance.config.models import VehicleConfig
 from appliance.core.autopilot import (
     AutopilotSource,
@@ -61,7 +62,6 @@ from appliance.modes import (
     ThrottlePedalPressed,
     step,
 )
-from calibration.calfile import Calibration
 from drivers.actuators.messages import (
     BrakeCommand,
     Buttons,

@@ -11,8 +11,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from appliance.config.calibration import Calibration
 from appliance.core.inputs import ControlInputs
-from calibration.calfile import Calibration
 from drivers.actuators.messages import BoardStatus, Buttons, FaultCode
 from drivers.pc104.messages import ControlSource
 

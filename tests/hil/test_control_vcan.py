@@ -44,15 +44,15 @@ import pytest
 
 from appliance.cli_sim import daemon_config
 from appliance.config import VehicleConfig, load_config
+from appliance.config.calibration_file import write_calibration
 from appliance.config.loader import to_toml
 from appliance.config.models import CanEndpoint
+from appliance.config.simulated_calibration import simulated_calibration
 from appliance.control_socket import ControlSocketError, query
 from appliance.sim.twins.board_set import ActuatorTwins
 from appliance.sim.twins.pc104_core import Pc104TwinCore, TwinParams
 from appliance.simulator import Simulator, build_simulator
 from appliance.supervisor import Supervisor
-from calibration.calfile import write_calibration
-from calibration.simulated import simulated_calibration
 from drivers.pc104 import protocol
 from drivers.pc104.endpoint import CanInterface
 from safety.watchdog import RestartPolicy

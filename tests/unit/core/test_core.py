@@ -16,12 +16,12 @@ from typing import Any
 import pytest
 
 from appliance.config import load_config
+from appliance.config.calibration import Calibration
 from appliance.config.models import VehicleConfig
 from appliance.core.autopilot import AutopilotSource, AutopilotWish, Observation
 from appliance.core.core import ControlCore
 from appliance.core.output import CoreOutput
 from appliance.modes import Mode
-from calibration.calfile import Calibration
 from drivers.actuators.messages import Buttons, FaultCode, Lamps, SteeringMode
 from drivers.pc104.messages import ControlSource, HighLevelState, MotionPattern, Pc104Faults
 from tests.unit.core.vehicle import SIM_CALIBRATION, BenchVehicle

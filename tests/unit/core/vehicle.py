@@ -13,11 +13,11 @@ from __future__ import annotations
 
 import math
 
+from appliance.config.calibration import Calibration
+from appliance.config.simulated_calibration import simulated_calibration
 from appliance.core.core import ControlCore
 from appliance.core.inputs import ControlInputs, LinkCounts
 from appliance.core.output import CoreOutput
-from calibration.calfile import Calibration
-from calibration.simulated import simulated_calibration
 from drivers.actuators.messages import (
     BUTTON_ORDER,
     BoardStatus,

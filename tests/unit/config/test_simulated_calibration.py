@@ -9,12 +9,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from calibration.calfile import Calibration, read_calibration_file, write_calibration
-from calibration.simulated import (
-    VALID_RANGE_MARGIN_RAD,
-    fit_pot_to_wheel_coeffs,
-    simulated_calibration,
-)
+from appliance.config.calibration import Calibration
+from appliance.config.calibration_file import read_calibration_file, write_calibration
+from appliance.config.simulated_calibration import VALID_RANGE_MARGIN_RAD, simulated_calibration
+from calibration.pot_map import fit_pot_to_wheel_coeffs
 from drivers.actuators.steering_model import PotMapping, ServoParams, pot_counts
 
 WHEEL_TOLERANCE_RAD = 0.005

@@ -17,23 +17,25 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from appliance.cli_calibration import calibration
-from calibration.calfile import (
-    BUILTIN_SIMULATED,
-    MAX_POT_TO_WHEEL_COEFFS,
+from appliance.config.atomic import write_text_atomic
+from appliance.config.calibration import (
     MIN_WHEEL_TRAVEL_RAD,
     Calibration,
-    CalibrationError,
     CalibrationFile,
     CounterSteerCalibration,
     GuidanceCalibration,
     SteeringCalibration,
+)
+from appliance.config.calibration_file import (
+    BUILTIN_SIMULATED,
+    CalibrationError,
     dumps_calibration,
     load_calibration,
     parse_calibration,
     read_calibration_file,
     write_calibration,
-    write_text_atomic,
 )
+from calibration.pot_map import MAX_POT_TO_WHEEL_COEFFS
 
 # The example of the format's documentation, as raw TOML values, table by table.
 BASE: dict[str, dict[str, str]] = {

@@ -9,18 +9,16 @@ maneuver fits measured points, and ``source`` says so rather than claiming a mea
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
 from datetime import UTC, datetime
 
 import numpy as np
 
-from calibration.calfile import (
-    MAX_POT_TO_WHEEL_COEFFS,
+from appliance.config.calibration import (
     POT_FULL_SCALE_COUNTS,
     CalibrationFile,
-    FloatArray,
     SteeringCalibration,
 )
+from calibration.pot_map import fit_pot_to_wheel_coeffs
 from drivers.actuators.steering_model import PotMapping, ServoParams
 
 # Readings this far past the steering lock are still accepted: the pot's noise at the
@@ -35,25 +33,6 @@ DEFAULT_MAPPING = PotMapping()
 DEFAULT_SERVO = ServoParams()
 
 
-def fit_pot_to_wheel_coeffs(
-    offset_counts: FloatArray, wheel_rad: FloatArray, powers: Sequence[int] = FIT_POWERS
-) -> tuple[float, ...]:
-    """Least squares ``wheel_rad ~ sum(c_p * d**p)`` over ``powers``, as file coefficients.
-
-    Fitted in ``d / max|d|`` (with d**9 of a thousand counts the raw problem is singular),
-    then scaled back. Returns ``coeff[i]`` for ``d**(i+1)``, zero where no power was fitted.
-    """
-    if max(powers) > MAX_POT_TO_WHEEL_COEFFS or min(powers) < 1:
-        raise ValueError(f"powers must lie in 1..{MAX_POT_TO_WHEEL_COEFFS} (got {powers})")
-    scale = float(np.max(np.abs(offset_counts)))
-    design = np.stack([(offset_counts / scale) ** p for p in powers], axis=1)
-    scaled, *_ = np.linalg.lstsq(design, wheel_rad, rcond=None)
-    coeffs = [0.0] * max(powers)
-    for power, coeff in zip(powers, scaled, strict=True):
-        coeffs[power - 1] = float(coeff) / scale**power
-    return tuple(coeffs)
-
-
 def simulated_calibration(
     vehicle_name: str,
     mapping: PotMapping = DEFAULT_MAPPING,
@@ -65,7 +44,7 @@ def simulated_calibration(
     reach_rad = servo.wheel_limit_rad + VALID_RANGE_MARGIN_RAD
     wheel_rad = np.linspace(-reach_rad, reach_rad, FIT_SAMPLES)
     counts = np.array([mapping.ideal_counts(float(w)) for w in wheel_rad])
-    coeffs = fit_pot_to_wheel_coeffs(counts - mapping.centre_counts, wheel_rad)
+    coeffs = fit_pot_to_wheel_coeffs(counts - mapping.centre_counts, wheel_rad, FIT_POWERS)
     ends = (mapping.ideal_counts(-reach_rad), mapping.ideal_counts(reach_rad))
     valid_min = max(0, math.floor(min(ends)))
     valid_max = min(POT_FULL_SCALE_COUNTS, math.ceil(max(ends)))

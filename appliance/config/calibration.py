@@ -1,0 +1,207 @@
+"""The calibration of one vehicle: the file's schema and the daemon's view of it.
+
+The daemon refuses to leave SELF_CHECK without a valid calibration, because every steering
+angle it reports or commands goes through this map: a wrong pot centre steers the vehicle
+off its path with every check in the safety layer still green. So the file is checked far
+beyond field bounds. The map must be strictly monotonic over the readings it accepts (a map
+that folds back gives two wheel angles for one reading and cannot be inverted), it must
+imply a steering-wheel travel a real vehicle has, and it must name the vehicle it was
+measured on. Readings outside the calibrated range are refused, not extrapolated: outside
+it the pot is broken or unplugged, and a guess is worse than a fault.
+
+Reading and writing the file is :mod:`appliance.config.calibration_file`; the map's
+polynomial and its fit are :mod:`calibration.pot_map`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from datetime import UTC, datetime
+from typing import Annotated, Final, Literal, Self
+
+import numpy as np
+from pydantic import (
+    AwareDatetime,
+    BaseModel,
+    ConfigDict,
+    Field,
+    FiniteFloat,
+    field_validator,
+    model_validator,
+)
+
+from calibration.pot_map import (
+    MAX_POT_TO_WHEEL_COEFFS,
+    wheel_rad_at,
+    wheel_slope_rad_per_count,
+)
+
+SCHEMA_VERSION: Final = 1
+POT_FULL_SCALE_COUNTS = 4095  # 12-bit ADC
+MONOTONIC_CHECK_POINTS = 512
+# A steering wheel turns between half a radian and about five turns from centre to lock.
+MIN_WHEEL_TRAVEL_RAD = 0.5
+MAX_WHEEL_TRAVEL_RAD = 30.0
+
+Counts = Annotated[int, Field(ge=0, le=POT_FULL_SCALE_COUNTS)]
+
+
+class _Model(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True, validate_default=True)
+
+
+class SteeringCalibration(_Model):
+    """The steering pot: raw 12-bit counts to steering-wheel angle, and the steering ratio."""
+
+    # Raw reading with the wheels straight ahead: 0 rad by definition.
+    pot_centre_counts: float = Field(ge=0.0, le=POT_FULL_SCALE_COUNTS)
+    # wheel_rad = sum(coeff[i] * d**(i+1)), d = counts - pot_centre_counts; rad per count^(i+1).
+    pot_to_wheel_coeffs: tuple[FiniteFloat, ...] = Field(
+        min_length=1, max_length=MAX_POT_TO_WHEEL_COEFFS
+    )
+    # Readings outside [min, max] are a broken or unplugged pot.
+    pot_valid_min_counts: Counts
+    pot_valid_max_counts: Counts
+    steering_ratio: float = Field(gt=1.0, le=60.0)  # steering-wheel rad per tyre rad
+
+    @model_validator(mode="after")
+    def _map_is_usable(self) -> Self:
+        low, high = self.pot_valid_min_counts, self.pot_valid_max_counts
+        centre = self.pot_centre_counts
+        if not low < centre < high:
+            raise ValueError(
+                "pot_centre_counts must lie strictly between pot_valid_min_counts and "
+                f"pot_valid_max_counts (got min {low}, centre {centre}, max {high})"
+            )
+        with np.errstate(all="ignore"):
+            for name, counts in (("pot_valid_min_counts", low), ("pot_valid_max_counts", high)):
+                wheel_rad = float(wheel_rad_at(self.pot_to_wheel_coeffs, counts - centre))
+                if not MIN_WHEEL_TRAVEL_RAD <= abs(wheel_rad) <= MAX_WHEEL_TRAVEL_RAD:
+                    raise ValueError(
+                        f"pot_to_wheel_coeffs gives {wheel_rad:.4g} rad of steering-wheel angle "
+                        f"at {name} = {counts}; a steering wheel turns "
+                        f"{MIN_WHEEL_TRAVEL_RAD}..{MAX_WHEEL_TRAVEL_RAD} rad from centre to "
+                        "lock: check the coefficients (rad per count, not per degree) and "
+                        "the valid range"
+                    )
+            offsets = np.linspace(low - centre, high - centre, MONOTONIC_CHECK_POINTS)
+            signs = np.sign(wheel_slope_rad_per_count(self.pot_to_wheel_coeffs, offsets))
+        # np.sign(nan) is nan, which matches no sign: a non-finite slope counts as a fold.
+        bad = np.flatnonzero((signs != signs[0]) | (signs == 0.0))
+        if bad.size:
+            raise ValueError(
+                "pot_to_wheel_coeffs is not strictly monotonic between pot_valid_min_counts "
+                f"and pot_valid_max_counts: its slope changes sign near "
+                f"{centre + offsets[bad[0]]:.0f} counts, so one reading would mean two wheel "
+                "angles (increasing or decreasing are both fine, a fold is not)"
+            )
+        return self
+
+
+class CounterSteerCalibration(_Model):
+    """Measured rear-to-front steer ratio of proportional counter-steer (a later maneuver)."""
+
+    k_ratio: float | None = Field(None, ge=0.0, le=1.5)
+
+
+class GuidanceCalibration(_Model):
+    """Guidance parameters tuned on the vehicle (a later maneuver)."""
+
+    look_ahead_m: float | None = Field(None, gt=0.0, le=50.0)
+
+
+class CalibrationFile(_Model):
+    """One calibration file, schema version 1, as read from TOML."""
+
+    schema_version: Literal[1] = SCHEMA_VERSION
+    vehicle_name: str = Field(min_length=1, max_length=64)  # the vehicle config's `name`
+    created_utc: AwareDatetime
+    source: str = Field(min_length=1)  # how it was obtained: maneuvers and date, or a fit
+    steering: SteeringCalibration
+    counter_steer: CounterSteerCalibration | None = None
+    guidance: GuidanceCalibration | None = None
+
+    @field_validator("created_utc")
+    @classmethod
+    def _is_utc(cls, value: datetime) -> datetime:
+        if value.utcoffset() != UTC.utcoffset(None):
+            raise ValueError(f"created_utc must be in UTC, ending in Z (got {value.isoformat()})")
+        return value.replace(tzinfo=UTC)
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """The runtime view of a validated calibration file: pure conversions, deny by default."""
+
+    vehicle_name: str
+    created_utc: datetime
+    source: str
+    pot_centre_counts: float
+    pot_to_wheel_coeffs: tuple[float, ...]
+    pot_valid_min_counts: int
+    pot_valid_max_counts: int
+    steering_ratio: float
+    counter_steer_k_ratio: float | None = None
+    guidance_look_ahead_m: float | None = None
+
+    @classmethod
+    def from_file(cls, model: CalibrationFile) -> Calibration:
+        steering = model.steering
+        return cls(
+            vehicle_name=model.vehicle_name,
+            created_utc=model.created_utc,
+            source=model.source,
+            pot_centre_counts=steering.pot_centre_counts,
+            pot_to_wheel_coeffs=tuple(float(c) for c in steering.pot_to_wheel_coeffs),
+            pot_valid_min_counts=steering.pot_valid_min_counts,
+            pot_valid_max_counts=steering.pot_valid_max_counts,
+            steering_ratio=steering.steering_ratio,
+            counter_steer_k_ratio=model.counter_steer.k_ratio if model.counter_steer else None,
+            guidance_look_ahead_m=model.guidance.look_ahead_m if model.guidance else None,
+        )
+
+    def wheel_rad_from_counts(self, counts: float) -> float | None:
+        """Steering-wheel angle, or None for a reading outside the valid range (or NaN)."""
+        if not self.pot_valid_min_counts <= counts <= self.pot_valid_max_counts:
+            return None
+        return float(wheel_rad_at(self.pot_to_wheel_coeffs, counts - self.pot_centre_counts))
+
+    def tyre_rad_from_counts(self, counts: float) -> float | None:
+        wheel_rad = self.wheel_rad_from_counts(counts)
+        return None if wheel_rad is None else wheel_rad / self.steering_ratio
+
+    @property
+    def valid_wheel_range_rad(self) -> tuple[float, float]:
+        """Lowest and highest steering-wheel angle the valid reading range maps to."""
+        ends = [
+            float(wheel_rad_at(self.pot_to_wheel_coeffs, counts - self.pot_centre_counts))
+            for counts in (self.pot_valid_min_counts, self.pot_valid_max_counts)
+        ]
+        return min(ends), max(ends)
+
+    @property
+    def valid_tyre_range_rad(self) -> tuple[float, float]:
+        low, high = self.valid_wheel_range_rad
+        return low / self.steering_ratio, high / self.steering_ratio
+
+    def counts_from_wheel_rad(self, wheel_rad: float) -> float:
+        """The reading that means ``wheel_rad``: bisection, which the validated monotonic map
+        makes exact to well below a count. Raises ValueError outside the valid range."""
+        low_rad, high_rad = self.valid_wheel_range_rad
+        if not low_rad <= wheel_rad <= high_rad:
+            raise ValueError(
+                f"steering-wheel angle {wheel_rad} rad is outside the calibrated range "
+                f"{low_rad:.4g}..{high_rad:.4g} rad"
+            )
+        low, high = float(self.pot_valid_min_counts), float(self.pot_valid_max_counts)
+        increasing = self._wheel_rad(high) > self._wheel_rad(low)
+        for _ in range(60):  # 4095 / 2**60 counts: far below float resolution of the result
+            middle = (low + high) / 2.0
+            if (self._wheel_rad(middle) < wheel_rad) == increasing:
+                low = middle
+            else:
+                high = middle
+        return (low + high) / 2.0
+
+    def _wheel_rad(self, counts: float) -> float:
+        return float(wheel_rad_at(self.pot_to_wheel_coeffs, counts - self.pot_centre_counts))
