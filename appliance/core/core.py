@@ -267,7 +267,16 @@ class ControlCore:
         return True, f"{before.mode} -> {self.state.mode}"
 
     def status(self, now_s: float) -> dict[str, Any]:
-        return core_status(self, now_s)
+        return core_status(
+            state=self.state,
+            mode_since_s=self.mode_since_s,
+            measured=self._measured,
+            hold_to_move_required=self.config.engagement.hold_to_move,
+            last_refusal=self.last_refusal,
+            faults=self.faults,
+            last_output=self.last_output,
+            now_s=now_s,
+        )
 
     # ---- pieces of the cycle -------------------------------------------------------------
     def _apply(self, event: Event, now_s: float) -> list[Action]:

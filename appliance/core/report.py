@@ -1,33 +1,46 @@
-"""The core's part of `dbw status`: mode, reasons, faults and commands as plain data."""
+"""The core's part of `dbw status`: mode, reasons, faults and commands as plain data.
+
+Built from what the core holds, handed over piece by piece, so this module depends on the
+pieces' types and not on the core that owns them.
+"""
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
-from appliance.core.output import describe_commands
+from appliance.core.observe import Measurements
+from appliance.core.output import CoreOutput, describe_commands
+from appliance.modes import ModeState
+from safety.faults import FaultMonitor
 
-if TYPE_CHECKING:
-    from appliance.core.core import ControlCore
 
-
-def core_status(self: ControlCore, now_s: float) -> dict[str, Any]:
-    state = self.state
-    out = self.last_output
-    m = self._measured
+def core_status(
+    *,
+    state: ModeState,
+    mode_since_s: float | None,
+    measured: Measurements | None,
+    hold_to_move_required: bool,
+    last_refusal: tuple[str, ...],
+    faults: FaultMonitor,
+    last_output: CoreOutput | None,
+    now_s: float,
+) -> dict[str, Any]:
+    out = last_output
+    m = measured
     return {
         "mode": str(state.mode),
-        "mode_since_s": None if self.mode_since_s is None else round(now_s - self.mode_since_s, 3),
+        "mode_since_s": None if mode_since_s is None else round(now_s - mode_since_s, 3),
         "set_speed_mps": state.set_speed_mps,
         "measured_speed_mps": None if m is None else m.speed_mps,
         "hold_to_move": {
-            "required": self.config.engagement.hold_to_move,
+            "required": hold_to_move_required,
             "held": state.hold_to_move_held,
         },
         "estop_latched": state.estop_latched,
-        "last_refusal": list(self.last_refusal),
+        "last_refusal": list(last_refusal),
         "faults": [
             {"key": f.key, "detail": f.detail, "since_s": round(now_s - f.raised_s, 3)}
-            for f in self.faults.active_faults.values()
+            for f in faults.active_faults.values()
         ]
         + [
             {
@@ -36,11 +49,11 @@ def core_status(self: ControlCore, now_s: float) -> dict[str, Any]:
                 "since_s": round(now_s - f.since_s, 3),
             }
             for f in state.faults
-            if f.reason not in self.faults.active_faults
+            if f.reason not in faults.active_faults
         ],
         "fault_history": [
             {"key": r.key, "detail": r.detail, "raised_s": r.raised_s, "cleared_s": r.cleared_s}
-            for r in self.faults.history[-20:]
+            for r in faults.history[-20:]
         ],
         "overrides": {}
         if out is None
