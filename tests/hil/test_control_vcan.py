@@ -42,7 +42,7 @@ from typing import Any
 import cantools
 import pytest
 
-from appliance.cli_sim import daemon_config
+from appliance.cli.sim import daemon_config
 from appliance.config import VehicleConfig, load_config
 from appliance.config.calibration_file import write_calibration
 from appliance.config.loader import to_toml

@@ -31,7 +31,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from structlog.testing import capture_logs
 
-from appliance.cli_control import CONTROL_COMMANDS, engage, hold, speed_up, status
+from appliance.cli.control import CONTROL_COMMANDS, engage, hold, speed_up, status
 from appliance.control_socket import (
     COMMAND_NAMES,
     MAX_LINE_BYTES,
@@ -710,7 +710,7 @@ async def test_cli_hold_releases_on_ctrl_c(short_tmp: Path) -> None:
     # earlier test has put a handler in place: the child would then never see the signal.
     child = (
         "import signal; signal.signal(signal.SIGINT, signal.default_int_handler); "
-        "from appliance.cli_control import hold; hold()"
+        "from appliance.cli.control import hold; hold()"
     )
     async with serving(path) as served:
         proc = await asyncio.create_subprocess_exec(

@@ -30,8 +30,8 @@ import click
 import pytest
 from click.testing import CliRunner, Result
 
-from appliance.cli_control import engage as engage_command
-from appliance.cli_control import status as status_command
+from appliance.cli.control import engage as engage_command
+from appliance.cli.control import status as status_command
 from appliance.config import VehicleConfig, load_config
 from appliance.control_socket import query
 from appliance.core.core import CoreOutput

@@ -5,7 +5,7 @@ from __future__ import annotations
 import asyncio
 import functools
 
-from appliance.cli_control import render_status
+from appliance.cli.status_view import render_status
 from appliance.loop_monitor import LoopMonitor
 
 

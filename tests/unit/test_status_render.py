@@ -9,7 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from appliance.cli_control import format_duration, render_status
+from appliance.cli.status_view import format_duration, render_status
 
 FULL: dict[str, Any] = {
     "vehicle": "sim",

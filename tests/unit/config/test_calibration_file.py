@@ -16,7 +16,7 @@ from click.testing import CliRunner
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from appliance.cli_calibration import calibration
+from appliance.cli.calibration import calibration
 from appliance.config.atomic import write_text_atomic
 from appliance.config.calibration import (
     MIN_WHEEL_TRAVEL_RAD,

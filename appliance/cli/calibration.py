@@ -14,7 +14,8 @@ import sys
 
 import click
 
-from appliance.config import BUILTIN_PROFILES, ConfigError, VehicleConfig, load_config
+from appliance.cli.common import CONFIG_OPTION, EXIT_CONFIG_ERROR, load_or_exit
+from appliance.config import VehicleConfig
 from appliance.config.calibration import Calibration, CalibrationFile
 from appliance.config.calibration_file import (
     CalibrationError,
@@ -23,26 +24,6 @@ from appliance.config.calibration_file import (
     write_calibration,
 )
 from appliance.config.simulated_calibration import simulated_calibration
-
-# Repeated from appliance.cli, which imports this module: importing it back is a cycle.
-EXIT_CONFIG_ERROR = 2
-
-CONFIG_OPTION = click.option(
-    "--config",
-    "config_name",
-    metavar="FILE|PROFILE",
-    help="The vehicle: a TOML file, or the name of a built-in profile ("
-    + ", ".join(BUILTIN_PROFILES)
-    + "). Default: sim, the built-in simulated vehicle.",
-)
-
-
-def _load_or_exit(name_or_path: str | None) -> VehicleConfig:
-    try:
-        return load_config(name_or_path)
-    except ConfigError as exc:
-        click.echo(exc.render(), err=True)
-        sys.exit(EXIT_CONFIG_ERROR)
 
 
 def _read_or_exit(file: str, config: VehicleConfig) -> CalibrationFile:
@@ -72,7 +53,7 @@ def calibration() -> None:
 @CONFIG_OPTION
 def calibration_check(file: str, config_name: str | None) -> None:
     """Validate FILE for the vehicle; print every problem and exit 2 if there is any."""
-    config = _load_or_exit(config_name)
+    config = load_or_exit(config_name)
     loaded = Calibration.from_file(_read_or_exit(file, config))
     click.echo(f"{file}: OK ({_summary(loaded)})")
 
@@ -83,7 +64,7 @@ def calibration_check(file: str, config_name: str | None) -> None:
 @click.option("--json", "as_json", is_flag=True, help="Print JSON instead of TOML.")
 def calibration_show(file: str | None, config_name: str | None, as_json: bool) -> None:
     """Print the calibration in FILE (default: the config's paths.calibration_file)."""
-    config = _load_or_exit(config_name)
+    config = load_or_exit(config_name)
     file = file if file is not None else config.paths.calibration_file
     model = _read_or_exit(file, config)
     loaded = Calibration.from_file(model)
@@ -106,7 +87,7 @@ def calibration_show(file: str | None, config_name: str | None, as_json: bool) -
 @CONFIG_OPTION
 def calibration_write_simulated(out: str, config_name: str | None) -> None:
     """Write the simulated vehicle's calibration, for the config's vehicle name, to OUT."""
-    config = _load_or_exit(config_name)
+    config = load_or_exit(config_name)
     if not config.simulation.enabled:
         # Legitimate for a daemon talking to `dbw sim` (its config disables simulation),
         # but on a real vehicle this file would pass self-check with a made-up mapping.

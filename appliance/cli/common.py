@@ -1,0 +1,29 @@
+"""What every command group shares: how a vehicle is named, and how a bad one ends the command."""
+
+from __future__ import annotations
+
+import sys
+
+import click
+
+from appliance.config import BUILTIN_PROFILES, ConfigError, VehicleConfig, load_config
+
+# A problem the person can fix (a bad vehicle or calibration file): one line each, no traceback.
+EXIT_CONFIG_ERROR = 2
+
+CONFIG_HELP = (
+    "A TOML file, or the name of a built-in profile ("
+    + ", ".join(BUILTIN_PROFILES)
+    + "). Default: sim, the built-in simulated vehicle."
+)
+
+CONFIG_OPTION = click.option("--config", "config_name", metavar="FILE|PROFILE", help=CONFIG_HELP)
+
+
+def load_or_exit(name_or_path: str | None) -> VehicleConfig:
+    """The vehicle file, or every problem with it printed and exit status 2."""
+    try:
+        return load_config(name_or_path)
+    except ConfigError as exc:
+        click.echo(exc.render(), err=True)
+        sys.exit(EXIT_CONFIG_ERROR)

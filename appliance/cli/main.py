@@ -1,0 +1,66 @@
+"""The `dbw` group: logging options, `dbw run` (what the systemd unit starts), and every
+command group of this package registered under it."""
+
+from __future__ import annotations
+
+import sys
+
+import click
+
+from appliance import __version__
+from appliance.cli.calibration import calibration
+from appliance.cli.common import CONFIG_OPTION, load_or_exit
+from appliance.cli.config import config
+from appliance.cli.control import CONTROL_COMMANDS
+from appliance.cli.lms111 import lms111
+from appliance.cli.sim import sim
+from appliance.logs import LEVELS, configure_logging
+
+
+@click.group(context_settings={"help_option_names": ["-h", "--help"]})
+@click.version_option(__version__, "--version", prog_name="dbw")
+@click.option(
+    "--log-level",
+    type=click.Choice(LEVELS),
+    default="info",
+    show_default=True,
+    help="Lowest level of log events to print.",
+)
+@click.option(
+    "--log-format",
+    type=click.Choice(["auto", "json", "console"]),
+    default="auto",
+    show_default=True,
+    help="auto: JSON lines when stdout is not a terminal (journald), readable text on one.",
+)
+def cli(log_level: str, log_format: str) -> None:
+    """dbw-applique: drive-by-wire appliqué runtime for retrofitted heavy vehicles."""
+    configure_logging(log_level, json=None if log_format == "auto" else log_format == "json")
+
+
+@cli.command()
+@CONFIG_OPTION
+@click.option(
+    "--duration-s",
+    type=click.FloatRange(min=0.0, min_open=True),
+    default=None,
+    help="Stop cleanly after this many seconds (demos and tests). Default: run until signalled.",
+)
+def run(config_name: str | None, duration_s: float | None) -> None:
+    """Run the daemon (what the systemd unit starts)."""
+    from appliance.daemon import run_daemon
+
+    vehicle = load_or_exit(config_name)
+    sys.exit(run_daemon(vehicle, duration_s=duration_s))
+
+
+cli.add_command(config)
+cli.add_command(lms111)
+cli.add_command(sim)
+cli.add_command(calibration)
+for _command in CONTROL_COMMANDS:
+    cli.add_command(_command)
+
+
+def main() -> None:
+    cli()

@@ -1,0 +1,253 @@
+"""`dbw status` as text: the daemon's status document rendered for a person, pure.
+
+The document comes over a socket from a daemon of maybe another version, so every field
+is read defensively: a missing or odd value prints as "?" rather than a traceback, and
+strings are cut and cleaned before they reach the terminal.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from typing import Any
+
+
+def render_status(doc: dict[str, Any]) -> str:
+    """A compact human view of the daemon's status document.
+
+    Every key is optional and may hold anything: what is there and makes sense is shown,
+    nothing here raises.
+    """
+    if not isinstance(doc, dict):
+        doc = {}
+    lines = [_headline(doc)]
+    speed = speed_line(doc)
+    if speed:
+        lines.append(speed)
+    hold = as_dict(doc.get("hold_to_move"))
+    if hold.get("required") is True:
+        held = "held" if hold.get("held") is True else "not held"
+        lines.append(f"hold-to-move: required, {held}")
+    if doc.get("estop_latched") is True:
+        lines.append("E-STOP LATCHED: `dbw estop-reset` once the vehicle is safe")
+    refusals = as_strings(doc.get("last_refusal"))
+    if refusals:
+        lines.append("last refusal:")
+        lines += [f"  - {reason}" for reason in refusals]
+    lines += _faults(doc)
+    lines += _inputs(doc)
+    lines += _name_table("commands", doc.get("commands"))
+    overrides = as_dict(doc.get("overrides"))
+    if overrides:
+        active = [clean_text(name) for name, on in overrides.items() if on is True]
+        lines.append("overrides: " + (", ".join(active) if active else "none"))
+    loop = _loop_line(doc)
+    if loop:
+        lines.append(loop)
+    event_loop = _event_loop_line(doc)
+    if event_loop:
+        lines.append(event_loop)
+    lines += _name_table("services", doc.get("services"))
+    return "\n".join(lines)
+
+
+def _headline(doc: dict[str, Any]) -> str:
+    mode = clean_text(doc.get("mode")).upper() if doc.get("mode") is not None else ""
+    head = mode or "UNKNOWN MODE"
+    since_s = _finite(doc.get("mode_since_s"))
+    if since_s is not None:
+        head += f" for {format_duration(since_s)}"
+    about = []
+    if doc.get("vehicle") is not None:
+        about.append(f"vehicle {clean_text(doc.get('vehicle'))}")
+    uptime_s = _finite(doc.get("uptime_s"))
+    if uptime_s is not None:
+        about.append(f"up {format_duration(uptime_s)}")
+    return head + (f"  ({', '.join(about)})" if about else "")
+
+
+def speed_line(doc: dict[str, Any]) -> str:
+    set_mps = _finite(doc.get("set_speed_mps"))
+    measured_mps = _finite(doc.get("measured_speed_mps"))
+    parts = []
+    if "set_speed_mps" in doc:
+        parts.append(f"set {set_mps:.2f} m/s" if set_mps is not None else "set -")
+    if measured_mps is not None:
+        parts.append(f"measured {measured_mps:.2f} m/s")
+    return "speed: " + ", ".join(parts) if parts else ""
+
+
+def _faults(doc: dict[str, Any]) -> list[str]:
+    lines = []
+    if "faults" in doc:
+        faults = [as_dict(fault) for fault in _list(doc.get("faults"))]
+        if not isinstance(doc.get("faults"), list):
+            lines.append(f"faults: unreadable ({clean_text(doc.get('faults'), 40)})")
+        elif not faults:
+            lines.append("faults: none")
+        else:
+            lines.append(f"faults ({len(faults)}):")
+            for fault in faults:
+                line = f"  {clean_text(fault.get('key', '?'))}"
+                if fault.get("detail"):
+                    line += f": {clean_text(fault.get('detail'))}"
+                age_s = _finite(fault.get("since_s"))
+                if age_s is not None:
+                    line += f" (for {format_duration(age_s)})"
+                lines.append(line)
+    history = [as_dict(entry) for entry in _list(doc.get("fault_history"))]
+    if history:
+        latest = history[-1]
+        lines.append(
+            f"fault history: {len(history)} cleared, latest {clean_text(latest.get('key', '?'))}"
+        )
+    return lines
+
+
+def _inputs(doc: dict[str, Any]) -> list[str]:
+    inputs = as_dict(doc.get("inputs"))
+    if not inputs:
+        return []
+    rows = []
+    for name, raw in inputs.items():
+        entry = as_dict(raw)
+        age = entry.get("age_s", "?")
+        age_s = _finite(age)
+        if age is None or (_number(age) is not None and age_s is None):
+            age_text = "never"  # null or infinite: nothing has arrived yet
+        else:
+            age_text = format_duration(age_s) if age_s is not None else "?"
+        limit_s = _finite(entry.get("limit_s"))
+        flags = []
+        if entry.get("stale") is True:
+            flags.append("STALE")
+        if entry.get("critical") is True:
+            flags.append("critical")
+        rows.append(
+            (
+                clean_text(name),
+                age_text,
+                format_duration(limit_s) if limit_s is not None else "-",
+                " ".join(flags),
+            )
+        )
+    width = min(max(5, *(len(row[0]) for row in rows)), 32)
+    lines = [f"inputs:{'':{width - 5}} {'age':>8} {'limit':>8}"]
+    for name, age_text, limit_text, flags_text in rows:
+        lines.append(f"  {name:<{width}} {age_text:>8} {limit_text:>8}  {flags_text}".rstrip())
+    return lines
+
+
+def _name_table(title: str, value: object) -> list[str]:
+    table = as_dict(value)
+    if not table:
+        return []
+    width = min(max(len(clean_text(name)) for name in table), 24)
+    return [f"{title}:"] + [
+        f"  {clean_text(name):<{width}}  {clean_text(item)}" for name, item in table.items()
+    ]
+
+
+def _loop_line(doc: dict[str, Any]) -> str:
+    loop = as_dict(doc.get("loop"))
+    parts = []
+    for key, template in (
+        ("rate_hz", "{:.1f} Hz"),
+        ("cycles", "{:.0f} cycles"),
+        ("overruns", "{:.0f} overruns"),
+        ("jitter_p99_ms", "jitter p99 {:.2f} ms"),
+        ("step_p99_ms", "step p99 {:.2f} ms"),
+    ):
+        value = _finite(loop.get(key))
+        if value is not None:
+            parts.append(template.format(value))
+    wakes_by = loop.get("wakes_by")
+    if isinstance(wakes_by, str) and parts:
+        parts.append(f"wakes by {clean_text(wakes_by)}")
+    deferred = _finite(loop.get("work_deferred"))
+    if deferred is not None and parts:
+        parts.append(f"{deferred:.0f} deferred for a cycle")
+    return "loop: " + ", ".join(parts) if parts else ""
+
+
+def _event_loop_line(doc: dict[str, Any]) -> str:
+    """Who held the event loop longest, in the last window and since start."""
+    lag = as_dict(doc.get("event_loop"))
+    disabled = as_dict(lag.get("since_start")).get("disabled")
+    if disabled:
+        return f"event loop: not monitored: {clean_text(disabled)}"
+    longest = _finite(lag.get("longest_callback_ms"))
+    if longest is None:
+        return ""
+    by = clean_text(lag.get("longest_callback_by"))
+    line = f"event loop: longest callback {longest:.1f} ms ({by})"
+    window = _finite(lag.get("window_s"))
+    slow = _finite(lag.get("slow_callbacks"))
+    busy = _finite(lag.get("busy_pct"))
+    if window is not None and slow is not None:
+        line += f", {slow:.0f} slow in the last {window:.1f} s"
+    cpu = _finite(lag.get("cpu_pct"))
+    if busy is not None:
+        line += f", {busy:.0f} % busy"
+        if cpu is not None:
+            line += f" ({cpu:.0f} % CPU)"
+    worst = as_dict(lag.get("since_start"))
+    worst_ms = _finite(worst.get("longest_callback_ms"))
+    if worst_ms is not None:
+        by = clean_text(worst.get("longest_callback_by"))
+        line += f"; worst since start {worst_ms:.1f} ms ({by})"
+    return line
+
+
+def format_duration(seconds: float) -> str:
+    if not math.isfinite(seconds):
+        return "never"
+    if abs(seconds) < 1.0:
+        return f"{seconds * 1e3:.0f} ms"
+    if abs(seconds) < 120.0:
+        return f"{seconds:.1f} s"
+    minutes, secs = divmod(int(seconds), 60)
+    if minutes < 120:
+        return f"{minutes} min {secs} s"
+    hours, minutes = divmod(minutes, 60)
+    return f"{hours} h {minutes} min"
+
+
+def _number(value: object) -> float | None:
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        return None
+    try:
+        return float(value)
+    except OverflowError:  # an integer too large for a float
+        return math.inf if value > 0 else -math.inf
+
+
+def _finite(value: object) -> float | None:
+    number = _number(value)
+    return number if number is not None and math.isfinite(number) else None
+
+
+def as_dict(value: object) -> dict[Any, Any]:
+    return value if isinstance(value, dict) else {}
+
+
+def _list(value: object) -> list[Any]:
+    return value if isinstance(value, list) else []
+
+
+def as_strings(value: object) -> list[str]:
+    if value is None or value == "" or value == []:
+        return []
+    items = value if isinstance(value, list) else [value]
+    return [clean_text(item) for item in items]
+
+
+def clean_text(value: object, limit: int = 160) -> str:
+    """One printable line (the daemon's strings may hold anything, even escape codes)."""
+    if not isinstance(value, str):
+        try:
+            value = json.dumps(value, default=str)
+        except (TypeError, ValueError, RecursionError):
+            value = "?"
+    text = "".join(ch if ch.isprintable() else "?" for ch in value[: limit + 1])
+    return text if len(text) <= limit else text[: limit - 3] + "..."
