@@ -4,10 +4,11 @@ One ``step`` runs, in this order, what Stanley et al.'s mode control (Fig. 4) an
 safety layer ask for: judge the age of every input, convert what is fresh, detect the
 operator (hands on the wheel, feet on the pedals), gather fault conditions, feed the mode
 machine its events (e-stop first, then faults, then the operator, then buttons), ask the
-autopilot source for its wish, and pass that wish through arbitration and limits. The
-result is a :class:`CoreOutput` with one command per actuator path; nothing in here
-touches a device. The object holds small rule objects with ``reset()``/``update()``;
-a fresh core (after any restart) is in BOOT and can only reach READY on its own.
+autopilot source for its wish; then :class:`~appliance.core.commands.CommandPaths` passes
+that wish through arbitration and limits. The result is a :class:`CoreOutput` with one
+command per actuator path; nothing in here touches a device. The object holds small rule
+objects with ``reset()``/``update()``; a fresh core (after any restart) is in BOOT and can
+only reach READY on its own.
 
 Actuation paths (see docs/control.md): steering through the servo board (a position
 set-point in the servo's relative frame, closed through the calibrated pot) and the
@@ -31,9 +32,10 @@ from appliance.core.autopilot import (
     default_pattern,
     make_source,
 )
+from appliance.core.commands import CommandPaths
 from appliance.core.inputs import ControlInputs
 from appliance.core.observe import Measurements, board_faults, measure, pc104_faults
-from appliance.core.output import SAFE_MODES, CoreOutput, Note, hl_state, printable
+from appliance.core.output import CoreOutput, Note
 from appliance.core.panel import PanelDecoder, PanelEvents
 from appliance.core.report import core_status
 from appliance.modes import (
@@ -63,20 +65,12 @@ from appliance.modes import (
     step,
 )
 from drivers.actuators.messages import (
-    BrakeCommand,
     Buttons,
-    Lamps,
-    PanelCommand,
-    SteeringCommand,
-    SteeringMode,
-    ThrottleCommand,
 )
-from drivers.pc104.messages import ControlSource, MotionCommand
-from safety.arbitration import OperatorInput, arbitrate
+from drivers.pc104.messages import ControlSource
+from safety.arbitration import OperatorInput
 from safety.consistency import CounterDeltas, SteeringTrackingMonitor
 from safety.faults import FaultMonitor
-from safety.limits import ActuatorCommand, CommandLimiter
-from safety.safe_state import SafeBrake, SafeKind, SpeedRamp
 
 BENCH_REQUESTS = (
     "engage",
@@ -88,7 +82,6 @@ BENCH_REQUESTS = (
     "hold",
     "release",
 )
-MAX_DISPLAY = 32
 
 
 _NOT_READY = EngageConditions(
@@ -127,9 +120,9 @@ class ControlCore:
         self.link_budget = parts.error_budget(config.safety)
         self.link_deltas = CounterDeltas()
         self.faults = FaultMonitor()
-        self.limiter = CommandLimiter(parts.limit_params(config.limits))
-        self.brake = SafeBrake(parts.safe_brake_params(config.safety, config.limits))
-        self.speed = SpeedRamp(parts.speed_ramp_params(config.engagement, config.limits))
+        self.commands = CommandPaths(
+            config, calibration, self.pattern, self.mode_params.max_speed_mps
+        )
         self.panel = PanelDecoder()
         self.reset()
 
@@ -145,14 +138,11 @@ class ControlCore:
             self.link_budget,
             self.link_deltas,
             self.faults,
-            self.limiter,
-            self.brake,
-            self.speed,
+            self.commands,
             self.panel,
             self.autopilot,
         ):
             rule.reset()
-        self._last_steer_rad: float | None = None
         self._brake_pedal_was = False
         self._throttle_pedal_was = False
         self._held = False
@@ -178,7 +168,7 @@ class ControlCore:
         m = measure(inputs, fresh, self.calibration)
         self._measured = m
         operator = self.override.update(
-            commanded_steer_rad=self._last_steer_rad,
+            commanded_steer_rad=self.commands.last_steer_rad,
             measured_steer_rad=m.steer_tyre_rad,
             servo_torque_nm=m.servo_torque_nm,
             brake_pedal_pct=m.brake_pedal_pct,
@@ -220,7 +210,7 @@ class ControlCore:
             self._held = held
             self._apply(HoldToMovePressed() if held else HoldToMoveReleased(), now_s)
 
-        output = self._commands(operator, m, wish, now_s)
+        output = self.commands.update(self.state, operator, m, wish, tuple(self._notes), now_s)
         self._notes = []
         self.last_output = output
         return output
@@ -410,7 +400,7 @@ class ControlCore:
             # range, a non-finite reading): a steering nobody can see is not steered.
             active["steering_unknown"] = "steering angle unknown (pot outside its calibrated range)"
         if self.tracking.update(
-            self._last_steer_rad, m.steer_tyre_rad, operator.steering_override, now_s
+            self.commands.last_steer_rad, m.steer_tyre_rad, operator.steering_override, now_s
         ):
             active["steering_tracking"] = (
                 "steering does not follow its command (servo torque loss, slip or lost pot)"
@@ -472,110 +462,6 @@ class ControlCore:
         self._apply(EStopReset(), now_s)
         self._note("estop_reset", by=by, to_mode=str(self.state.mode))
         return True, f"e-stop reset -> {self.state.mode}"
-
-    # ---- commands -------------------------------------------------------------------------
-    def _commands(
-        self, operator: OperatorInput, m: Measurements, wish: AutopilotWish, now_s: float
-    ) -> CoreOutput:
-        mode = self.state.mode
-        automatic = mode in AUTOMATIC_MODES
-        safe = mode in SAFE_MODES
-        request = ActuatorCommand(wish.steer_tyre_rad if automatic else None, 0.0, 0.0)
-        chosen = arbitrate(operator, safe, request if automatic else None, automatic, False)
-        steer_request = None if chosen is None else chosen.steer_angle_rad
-        limited, violations = self.limiter.update(
-            ActuatorCommand(steer_request, 0.0, 0.0),
-            m.speed_mps if m.speed_mps is not None else 0.0,
-            now_s,
-            m.steer_tyre_rad,
-        )
-        steer_rad = limited.steer_angle_rad if automatic else None
-        if "input_not_finite" in violations:
-            steer_rad = None
-        self._last_steer_rad = steer_rad
-
-        speed_setpoint: float | None = None
-        if automatic:
-            target = self._speed_target(operator, m, wish)
-            stopping = self.config.engagement.hold_to_move and not self.state.hold_to_move_held
-            speed_setpoint = self.speed.update(target, now_s, controlled_stop=stopping)
-        else:
-            self.speed.reset(m.speed_mps if m.speed_mps is not None else 0.0)
-
-        kind = SafeKind.ESTOP if mode is Mode.ESTOP else SafeKind.FAULT if safe else SafeKind.NONE
-        brake_pct = self.brake.update(kind, now_s)
-        return CoreOutput(
-            now_s=now_s,
-            mode=mode,
-            steering=self._steering_command(steer_rad, m),
-            throttle=ThrottleCommand(enable=False),
-            brake=BrakeCommand(enable=True, position_pct=brake_pct)
-            if safe
-            else BrakeCommand(enable=False),
-            panel=self._panel_command(),
-            pc104=self._pc104_command(steer_rad, speed_setpoint, wish),
-            hl_state=hl_state(mode),
-            operator=operator,
-            steer_tyre_rad=steer_rad,
-            speed_setpoint_mps=speed_setpoint,
-            notes=tuple(self._notes),
-        )
-
-    def _speed_target(self, operator: OperatorInput, m: Measurements, wish: AutopilotWish) -> float:
-        cap = self.mode_params.max_speed_mps
-        if wish.max_speed_mps is not None:
-            cap = min(cap, wish.max_speed_mps)
-        if self.state.mode is Mode.SPEED_HOLD and self.state.set_speed_mps is not None:
-            return min(self.state.set_speed_mps, cap)
-        # ENGAGED: speed is the operator's; their throttle pedal is forwarded to the PC104.
-        if operator.brake_pedal or m.throttle_pedal_pct is None:
-            return 0.0
-        return min(cap, cap * max(0.0, m.throttle_pedal_pct) / 100.0)
-
-    def _steering_command(self, steer_rad: float | None, m: Measurements) -> SteeringCommand:
-        calibration = self.calibration
-        if (
-            steer_rad is None
-            or calibration is None
-            or m.servo_position_rad is None
-            or m.steer_wheel_rad is None
-        ):
-            return SteeringCommand(SteeringMode.RELEASE)
-        # The servo's encoder is relative: aim it by the remaining error the pot sees.
-        target_wheel_rad = steer_rad * calibration.steering_ratio
-        setpoint = m.servo_position_rad + (target_wheel_rad - m.steer_wheel_rad)
-        return SteeringCommand(SteeringMode.POSITION, wheel_angle_setpoint_rad=setpoint)
-
-    def _pc104_command(
-        self, steer_rad: float | None, speed_mps: float | None, wish: AutopilotWish
-    ) -> MotionCommand:
-        if speed_mps is None or steer_rad is None:
-            return MotionCommand.stop()
-        return MotionCommand(
-            pattern=wish.pattern or self.pattern,
-            speed_mps=speed_mps,
-            front_steer_rad=steer_rad,
-        )
-
-    def _panel_command(self) -> PanelCommand:
-        state = self.state
-        mode = state.mode
-        lamps = Lamps.NONE
-        if mode in (Mode.ERROR, Mode.ESTOP):
-            lamps |= Lamps.OVERRIDE | Lamps.WARNING
-        if mode in AUTOMATIC_MODES:
-            lamps |= Lamps.ENGAGED
-        match mode:
-            case Mode.SPEED_HOLD:
-                text = f"SPEED HOLD {state.set_speed_mps or 0.0:.2f} m/s"
-            case Mode.ERROR:
-                first = state.faults[0].reason if state.faults else "cleared: press OVERRIDE"
-                text = f"ERROR {first}"
-            case Mode.ESTOP:
-                text = "E-STOP: release, then OVERRIDE"
-            case _:
-                text = str(mode).upper().replace("_", " ")
-        return PanelCommand(lamps, printable(text)[:MAX_DISPLAY])
 
 
 __all__ = ["BENCH_REQUESTS", "ControlCore", "CoreOutput", "Note"]

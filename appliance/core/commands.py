@@ -1,0 +1,173 @@
+"""What each actuator path is told, once the mode machine has decided the cycle's mode.
+
+The core decides *whether* the vehicle is under automatic control; this decides *what*
+that means for each path: the autopilot's steering wish through arbitration and the
+command limiter, the set speed through the speed ramp (a controlled stop under
+hold-to-move), the safe-state brake, the panel's lamps and text, and the PC104's motion
+command. Holding the limiter and the ramps here, behind ``reset()``/``update()``, keeps the
+rate limits' memory in one place that a restart clears.
+"""
+
+from __future__ import annotations
+
+from appliance.config import parts
+from appliance.config.calibration import Calibration
+from appliance.config.models import VehicleConfig
+from appliance.core.autopilot import AutopilotWish
+from appliance.core.observe import Measurements
+from appliance.core.output import SAFE_MODES, CoreOutput, Note, hl_state, printable
+from appliance.modes import AUTOMATIC_MODES, Mode, ModeState
+from drivers.actuators.messages import (
+    BrakeCommand,
+    Lamps,
+    PanelCommand,
+    SteeringCommand,
+    SteeringMode,
+    ThrottleCommand,
+)
+from drivers.pc104.messages import MotionCommand, MotionPattern
+from safety.arbitration import OperatorInput, arbitrate
+from safety.limits import ActuatorCommand, CommandLimiter
+from safety.safe_state import SafeBrake, SafeKind, SpeedRamp
+
+MAX_DISPLAY = 32
+
+
+class CommandPaths:
+    """The cycle's command for every actuator path, from the mode, the operator and the wish."""
+
+    def __init__(
+        self,
+        config: VehicleConfig,
+        calibration: Calibration | None,
+        pattern: MotionPattern,
+        max_speed_mps: float,
+    ) -> None:
+        self.calibration = calibration
+        self.pattern = pattern
+        self.max_speed_mps = max_speed_mps
+        self.hold_to_move = config.engagement.hold_to_move
+        self.limiter = CommandLimiter(parts.limit_params(config.limits))
+        self.brake = SafeBrake(parts.safe_brake_params(config.safety, config.limits))
+        self.speed = SpeedRamp(parts.speed_ramp_params(config.engagement, config.limits))
+        self.reset()
+
+    def reset(self) -> None:
+        self.limiter.reset()
+        self.brake.reset()
+        self.speed.reset()
+        # The steering command last sent (None: released); the override and tracking rules
+        # compare the measured angle with it.
+        self.last_steer_rad: float | None = None
+
+    def update(
+        self,
+        state: ModeState,
+        operator: OperatorInput,
+        m: Measurements,
+        wish: AutopilotWish,
+        notes: tuple[Note, ...],
+        now_s: float,
+    ) -> CoreOutput:
+        mode = state.mode
+        automatic = mode in AUTOMATIC_MODES
+        safe = mode in SAFE_MODES
+        request = ActuatorCommand(wish.steer_tyre_rad if automatic else None, 0.0, 0.0)
+        chosen = arbitrate(operator, safe, request if automatic else None, automatic, False)
+        steer_request = None if chosen is None else chosen.steer_angle_rad
+        limited, violations = self.limiter.update(
+            ActuatorCommand(steer_request, 0.0, 0.0),
+            m.speed_mps if m.speed_mps is not None else 0.0,
+            now_s,
+            m.steer_tyre_rad,
+        )
+        steer_rad = limited.steer_angle_rad if automatic else None
+        if "input_not_finite" in violations:
+            steer_rad = None
+        self.last_steer_rad = steer_rad
+
+        speed_setpoint: float | None = None
+        if automatic:
+            target = self._speed_target(state, operator, m, wish)
+            stopping = self.hold_to_move and not state.hold_to_move_held
+            speed_setpoint = self.speed.update(target, now_s, controlled_stop=stopping)
+        else:
+            self.speed.reset(m.speed_mps if m.speed_mps is not None else 0.0)
+
+        kind = SafeKind.ESTOP if mode is Mode.ESTOP else SafeKind.FAULT if safe else SafeKind.NONE
+        brake_pct = self.brake.update(kind, now_s)
+        return CoreOutput(
+            now_s=now_s,
+            mode=mode,
+            steering=self._steering_command(steer_rad, m),
+            throttle=ThrottleCommand(enable=False),
+            brake=BrakeCommand(enable=True, position_pct=brake_pct)
+            if safe
+            else BrakeCommand(enable=False),
+            panel=panel_command(state),
+            pc104=self._pc104_command(steer_rad, speed_setpoint, wish),
+            hl_state=hl_state(mode),
+            operator=operator,
+            steer_tyre_rad=steer_rad,
+            speed_setpoint_mps=speed_setpoint,
+            notes=notes,
+        )
+
+    def _speed_target(
+        self, state: ModeState, operator: OperatorInput, m: Measurements, wish: AutopilotWish
+    ) -> float:
+        cap = self.max_speed_mps
+        if wish.max_speed_mps is not None:
+            cap = min(cap, wish.max_speed_mps)
+        if state.mode is Mode.SPEED_HOLD and state.set_speed_mps is not None:
+            return min(state.set_speed_mps, cap)
+        # ENGAGED: speed is the operator's; their throttle pedal is forwarded to the PC104.
+        if operator.brake_pedal or m.throttle_pedal_pct is None:
+            return 0.0
+        return min(cap, cap * max(0.0, m.throttle_pedal_pct) / 100.0)
+
+    def _steering_command(self, steer_rad: float | None, m: Measurements) -> SteeringCommand:
+        calibration = self.calibration
+        if (
+            steer_rad is None
+            or calibration is None
+            or m.servo_position_rad is None
+            or m.steer_wheel_rad is None
+        ):
+            return SteeringCommand(SteeringMode.RELEASE)
+        # The servo's encoder is relative: aim it by the remaining error the pot sees.
+        target_wheel_rad = steer_rad * calibration.steering_ratio
+        setpoint = m.servo_position_rad + (target_wheel_rad - m.steer_wheel_rad)
+        return SteeringCommand(SteeringMode.POSITION, wheel_angle_setpoint_rad=setpoint)
+
+    def _pc104_command(
+        self, steer_rad: float | None, speed_mps: float | None, wish: AutopilotWish
+    ) -> MotionCommand:
+        if speed_mps is None or steer_rad is None:
+            return MotionCommand.stop()
+        return MotionCommand(
+            pattern=wish.pattern or self.pattern,
+            speed_mps=speed_mps,
+            front_steer_rad=steer_rad,
+        )
+
+
+def panel_command(state: ModeState) -> PanelCommand:
+    """The panel's lamps and its 32-character text for the mode."""
+    mode = state.mode
+    lamps = Lamps.NONE
+    if mode in (Mode.ERROR, Mode.ESTOP):
+        lamps |= Lamps.OVERRIDE | Lamps.WARNING
+    if mode in AUTOMATIC_MODES:
+        lamps |= Lamps.ENGAGED
+    match mode:
+        case Mode.SPEED_HOLD:
+            text = f"SPEED HOLD {state.set_speed_mps or 0.0:.2f} m/s"
+        case Mode.ERROR:
+            first = state.faults[0].reason if state.faults else "cleared: press OVERRIDE"
+            text = f"ERROR {first}"
+        case Mode.ESTOP:
+            text = "E-STOP: release, then OVERRIDE"
+        case _:
+            text = str(mode).upper().replace("_", " ")
+    return PanelCommand(lamps, printable(text)[:MAX_DISPLAY])
