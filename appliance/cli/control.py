@@ -20,7 +20,7 @@ import click
 
 from appliance.cli.status_view import as_dict, as_strings, clean_text, render_status, speed_line
 from appliance.config import BUILTIN_PROFILES, ConfigError, load_config
-from appliance.control_socket import ControlClient, ControlSocketError, query_sync
+from appliance.control_client import ControlClient, ControlSocketError, query_sync
 
 EXIT_ACCEPTED = 0
 EXIT_REFUSED = 1

@@ -32,20 +32,17 @@ from hypothesis import strategies as st
 from structlog.testing import capture_logs
 
 from appliance.cli.control import CONTROL_COMMANDS, engage, hold, speed_up, status
-from appliance.control_socket import (
+from appliance.control_client import ControlClient, ControlSocketError, query, query_sync
+from appliance.control_protocol import (
     COMMAND_NAMES,
     MAX_LINE_BYTES,
     CommandRequest,
-    ControlClient,
-    ControlServer,
-    ControlSocketError,
     RequestError,
     StatusRequest,
     decode_request,
     encode_message,
-    query,
-    query_sync,
 )
+from appliance.control_socket import ControlServer
 from appliance.logs import configure_logging
 from appliance.supervisor import PermanentServiceError
 
@@ -556,7 +553,7 @@ async def test_query_explains_permission_denied(short_tmp: Path) -> None:
         child = textwrap.dedent(
             f"""
             import os
-            from appliance.control_socket import ControlSocketError, query_sync
+            from appliance.control_client import ControlSocketError, query_sync
             os.setgroups([])
             os.setgid(65534)
             os.setuid(65534)

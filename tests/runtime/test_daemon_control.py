@@ -33,7 +33,7 @@ from click.testing import CliRunner, Result
 from appliance.cli.control import engage as engage_command
 from appliance.cli.control import status as status_command
 from appliance.config import VehicleConfig, load_config
-from appliance.control_socket import query
+from appliance.control_client import query
 from appliance.core.core import CoreOutput
 from appliance.daemon import Daemon, RunResult
 from appliance.modes import Mode
