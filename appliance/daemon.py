@@ -30,9 +30,9 @@ from appliance.control_socket import ControlServer
 from appliance.core.autopilot import AutopilotSource
 from appliance.core.core import ControlCore
 from appliance.core.output import CoreOutput
+from appliance.daemon_status import service_summary, status_document, status_line
 from appliance.logs import get_logger
 from appliance.loop_monitor import LoopLag, LoopMonitor
-from appliance.modes import Mode
 from appliance.supervisor import ServiceContext, ServiceSpec, ServiceState, Supervisor
 from appliance.systemd_notify import SystemdNotifier
 from appliance.vehicle_io import (
@@ -373,72 +373,27 @@ class Daemon:
             await asyncio.sleep(tick_s)
 
     def _service_summary(self) -> dict[str, str]:
-        summary = {}
-        for status in self.supervisor.snapshot():
-            age = status.heartbeat_age_s
-            text = str(status.state)
-            if math.isfinite(age):
-                text += f" beat {age * 1e3:.0f} ms ago"
-            if status.restarts:
-                text += f", {status.restarts} restart(s)"
-            summary[status.name] = text
-        return summary
+        return service_summary(self.supervisor.snapshot())
 
     def status_line(self) -> str:
         """One line for `systemctl status`: what the daemon is doing, in words."""
-        latched = self.supervisor.latched_error
-        if latched is not None:
-            return (
-                f"ERROR (latched): critical service '{latched.service}' failed: {latched.reason}; "
-                "vehicle held safe, restart the service to recover"
-            )
-        states = self.supervisor.snapshot()
-        unhealthy = [s.name for s in states if s.critical and s.state is not ServiceState.RUNNING]
-        restarts = sum(s.restarts for s in states)
-        state = self.core.state
-        head = str(state.mode).upper()
-        if state.mode is Mode.SPEED_HOLD and state.set_speed_mps is not None:
-            head += f" {state.set_speed_mps:.2f} m/s"
-        if state.faults:
-            head += ": " + "; ".join(f.reason for f in state.faults[:3])
-        elif state.mode is Mode.READY and self.core.last_refusal:
-            head += " (last refusal: " + "; ".join(self.core.last_refusal[:2]) + ")"
-        if unhealthy:
-            head = "DEGRADED: restarting " + ", ".join(unhealthy) + "; " + head
-        return f"{head}; {len(states)} services, {restarts} restart(s)"
+        return status_line(self.supervisor.latched_error, self.supervisor.snapshot(), self.core)
 
     def status_document(self) -> dict[str, Any]:
         """What `dbw status` shows: the core's view plus inputs, loop figures, services."""
         now_s = self.clock()
-        doc: dict[str, Any] = {
-            "vehicle": self.config.name,
-            "uptime_s": round(now_s - self.started_s, 3),
-        }
-        doc.update(self.core.status(now_s))
-        ages = self.io.topics.ages_s(now_s)
-        ages["steering.pot"] = ages.get("board.steering", math.inf)
-        limits = self.core.staleness.age_limits_s
-        critical = set(self.core.staleness.critical)
-        doc["inputs"] = {
-            name: {
-                "age_s": round(age, 4) if math.isfinite(age) else None,
-                "limit_s": limits.get(name),
-                "stale": name in limits and not (math.isfinite(age) and age <= limits[name]),
-                "critical": name in critical,
-            }
-            for name, age in sorted(ages.items())
-        }
-        doc["loop"] = {
-            **self.control.loop_figures(),
-            # Scan decodes and heartbeats that waited for a cycle due (ControlSlot).
-            "work_deferred": self.io.work_slot.deferred,
-        }
-        lag = self.last_loop_lag or self.loop_monitor.window()
-        doc["event_loop"] = {**lag.as_dict(), "since_start": self.loop_monitor.worst()}
-        doc["services"] = self._service_summary()
-        if self.core.calibration_problem:
-            doc["calibration"] = self.core.calibration_problem
-        return doc
+        return status_document(
+            vehicle=self.config.name,
+            uptime_s=now_s - self.started_s,
+            core=self.core,
+            topics=self.io.topics,
+            loop=self.control.loop_figures(),
+            work_deferred=self.io.work_slot.deferred,
+            event_loop=self.last_loop_lag or self.loop_monitor.window(),
+            event_loop_worst=self.loop_monitor.worst(),
+            services=self._service_summary(),
+            now_s=now_s,
+        )
 
 
 class DaemonControlApi:
