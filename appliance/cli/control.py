@@ -20,7 +20,8 @@ import click
 
 from appliance.cli.status_view import as_dict, as_strings, clean_text, render_status, speed_line
 from appliance.config import BUILTIN_PROFILES, ConfigError, load_config
-from appliance.control_client import ControlClient, ControlSocketError, query_sync
+from appliance.control_client import ControlClient, query_sync
+from appliance.control_protocol import ControlSocketError
 
 EXIT_ACCEPTED = 0
 EXIT_REFUSED = 1

@@ -60,6 +60,14 @@ class CommandPaths:
         # compare the measured angle with it.
         self.last_steer_rad: float | None = None
 
+    def engaged(self) -> None:
+        """Automatic control begins: no rate limit remembers a command from before."""
+        self.limiter.reset()
+
+    def speed_hold_entered(self) -> None:
+        """Speed hold begins: the ramp starts from the set-point it has reached."""
+        self.speed.reset(self.speed.setpoint_mps)
+
     def update(
         self,
         state: ModeState,

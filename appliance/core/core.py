@@ -283,9 +283,9 @@ class ControlCore:
             )
             if after.mode in AUTOMATIC_MODES and before.mode not in AUTOMATIC_MODES:
                 self.autopilot.reset()
-                self.limiter.reset()
+                self.commands.engaged()
             if after.mode is Mode.SPEED_HOLD and before.mode is not Mode.SPEED_HOLD:
-                self.speed.reset(self.speed.setpoint_mps)
+                self.commands.speed_hold_entered()
         for action in actions:
             if isinstance(action, RefuseEngagement) and action.reasons != self.last_refusal:
                 self._note("engage_refused", reasons=list(action.reasons))

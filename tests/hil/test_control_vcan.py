@@ -48,7 +48,8 @@ from appliance.config.calibration_file import write_calibration
 from appliance.config.loader import to_toml
 from appliance.config.models import CanEndpoint
 from appliance.config.simulated_calibration import simulated_calibration
-from appliance.control_client import ControlSocketError, query
+from appliance.control_client import query
+from appliance.control_protocol import ControlSocketError
 from appliance.sim.twins.board_set import ActuatorTwins
 from appliance.sim.twins.pc104_core import Pc104TwinCore, TwinParams
 from appliance.simulator import Simulator, build_simulator

@@ -32,11 +32,12 @@ from hypothesis import strategies as st
 from structlog.testing import capture_logs
 
 from appliance.cli.control import CONTROL_COMMANDS, engage, hold, speed_up, status
-from appliance.control_client import ControlClient, ControlSocketError, query, query_sync
+from appliance.control_client import ControlClient, query, query_sync
 from appliance.control_protocol import (
     COMMAND_NAMES,
     MAX_LINE_BYTES,
     CommandRequest,
+    ControlSocketError,
     RequestError,
     StatusRequest,
     decode_request,
