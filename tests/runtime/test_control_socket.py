@@ -554,7 +554,8 @@ async def test_query_explains_permission_denied(short_tmp: Path) -> None:
         child = textwrap.dedent(
             f"""
             import os
-            from appliance.control_client import ControlSocketError, query_sync
+            from appliance.control_client import query_sync
+            from appliance.control_protocol import ControlSocketError
             os.setgroups([])
             os.setgid(65534)
             os.setuid(65534)
