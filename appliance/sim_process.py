@@ -43,6 +43,7 @@ READY_TIMEOUT_S = 30.0  # imports and site set-up; a cold machine takes a few se
 # simulation has nothing to save: SIGTERM, and SIGKILL if it is not gone by then.
 STOP_GRACE_S = 0.3
 CAN_ADAPTER_NAME = "pc104-can"
+BENCH_SOCKET_NAME = "bench.sock"
 # The child runs this much nicer than the daemon: on a machine with fewer free cores than
 # runnable processes the scheduler hands a core to the control loop's wake-up first, as
 # it would to the daemon on the vehicle, where the simulated world does not exist.
@@ -105,6 +106,12 @@ class SimProcess:
             bitrate_bps=500_000,
         )
 
+    @property
+    def bench_path(self) -> str:
+        """The child's bench socket (:mod:`appliance.sim.bench`): tests and benchmarks act
+        as the operator and flip the twins' fault switches through it."""
+        return os.path.join(self.directory, BENCH_SOCKET_NAME)
+
     def command(self, config_file: str, ready_fd: int) -> list[str]:
         level, as_json = current_log_settings()
         return [
@@ -125,6 +132,8 @@ class SimProcess:
             "--ready-fd",
             str(ready_fd),
             "--exit-on-stdin-eof",
+            "--bench-socket",
+            self.bench_path,
         ]
 
     async def run(self, beat: Callable[[], None]) -> None:

@@ -24,6 +24,8 @@ from appliance.config.loader import to_toml
 from appliance.config.models import CanEndpoint
 from appliance.config.simulated_calibration import simulated_calibration
 from appliance.logs import get_logger
+from appliance.sim.bench import SimBench
+from appliance.sim.bench_socket import serve_bench
 from appliance.simulator import Simulator, build_simulator
 from appliance.supervisor import Supervisor
 from drivers.pc104.endpoint import CanInterface
@@ -69,6 +71,7 @@ async def run_simulator(
     *,
     ready_fd: int | None = None,
     exit_on_stdin_eof: bool = False,
+    bench_socket: Path | None = None,
 ) -> int:
     policy = RestartPolicy()
     simulator = build_simulator(config, policy, can=can, pty_directory=pty_directory)
@@ -78,9 +81,20 @@ async def run_simulator(
         loop.add_signal_handler(signum, stop.set)
     supervisor = Supervisor(simulator.services)
     root = asyncio.create_task(supervisor.run(), name="simulator")
+    bench: asyncio.Server | None = None
     try:
         await asyncio.wait_for(supervisor.wait_critical_up(), 5.0)
         assert simulator.board_twins is not None
+        if bench_socket is not None:
+            bench = await serve_bench(
+                bench_socket,
+                SimBench(
+                    simulator.world,
+                    simulator.board_twins,
+                    simulator.pc104_twin,
+                    simulator.scanner_twins,
+                ),
+            )
         left, right = config.devices.lms111_left, config.devices.lms111_right
         endpoints = {
             "lms111_left": f"{left.host}:{left.port}",
@@ -92,6 +106,7 @@ async def run_simulator(
                 f"{board}_serial": simulator.board_twins.port_path(f"sim://{board}")
                 for board in BOARDS
             },
+            "bench": str(bench_socket) if bench_socket is not None else "none (--bench-socket)",
         }
         if ready_fd is None:  # a daemon that started us reads no endpoint table
             for name, where in endpoints.items():
@@ -118,6 +133,8 @@ async def run_simulator(
             await asyncio.wait_for(stop.wait(), duration_s)
         return 0
     finally:
+        if bench is not None:
+            bench.close()
         root.cancel()
         with contextlib.suppress(asyncio.CancelledError):
             await asyncio.wait_for(root, 2.0)
@@ -177,6 +194,14 @@ def _stop_on_stdin_eof(loop: asyncio.AbstractEventLoop, stop: asyncio.Event) -> 
 @click.option(
     "--exit-on-stdin-eof", is_flag=True, help="Stop when standard input ends (the parent died)."
 )
+@click.option(
+    "--bench-socket",
+    type=click.Path(dir_okay=False, path_type=Path),
+    default=None,
+    help="Listen here for bench requests (press a panel button, pull a cable, silence the "
+    "PC104, observe what the twins were told): see appliance/sim/bench.py. Put it in a "
+    "directory only you can write to.",
+)
 def sim(
     config_name: str,
     can_channel: str | None,
@@ -186,6 +211,7 @@ def sim(
     duration_s: float | None,
     ready_fd: int | None,
     exit_on_stdin_eof: bool,
+    bench_socket: Path | None,
 ) -> None:
     """Run the simulated vehicle and print its endpoints (and a config for `dbw run`)."""
     try:
@@ -213,6 +239,7 @@ def sim(
                 duration_s,
                 ready_fd=ready_fd,
                 exit_on_stdin_eof=exit_on_stdin_eof,
+                bench_socket=bench_socket,
             )
         )
     )

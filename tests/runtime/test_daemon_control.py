@@ -1,9 +1,11 @@
-"""The daemon's control behaviour against the twins, in real time.
+"""The daemon's control behaviour against the simulated vehicle, in real time.
 
-Every test runs the whole daemon on the built-in "sim" profile: the drivers talk to the
-twins over real ptys, TCP and python-can's virtual bus, the supervisor owns every task.
-A test presses the panel's buttons, moves the operator's hands and feet, and breaks
-links and services, then checks what the twins were told and when. Liveness waits are
+Every test runs the whole daemon on the built-in "sim" profile as shipped: the simulated
+vehicle in its own process, reached over TCP, ptys and a simulated SLCAN adapter exactly
+as hardware is, and the supervisor owning every task. Through the simulated vehicle's
+bench socket (``tests.runtime.twin_view``) a test presses the panel's buttons, moves the
+operator's hands and feet, and breaks links and devices, then checks what the twins were
+told and when; it breaks the daemon's own services from inside. Liveness waits are
 generous (the machine is shared); where the requirement is "within one control cycle"
 the latency is measured and asserted against 0.1 s, and printed (``pytest -s``).
 """
@@ -19,13 +21,11 @@ import socket
 import sys
 import tempfile
 import time
-import uuid
 from collections.abc import AsyncIterator, Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import can
 import click
 import pytest
 from click.testing import CliRunner, Result
@@ -37,31 +37,20 @@ from appliance.control_client import query
 from appliance.core.core import CoreOutput
 from appliance.daemon import Daemon, RunResult
 from appliance.modes import Mode
-from appliance.sim.twins.board_set import ActuatorTwins
-from appliance.sim.twins.lms111 import Lms111Twin
-from appliance.sim.twins.pc104 import Pc104Twin
-from appliance.sim.world import SimWorld
 from appliance.supervisor import ServiceState
-from drivers.actuators.messages import (
-    BrakeCommand,
-    BrakeTelemetry,
-    Lamps,
-    SteeringMode,
-)
-from drivers.pc104 import protocol
-from drivers.pc104.messages import HighLevelState, HlHeartbeat, MotionPattern
-from tests.runtime.inline import inline_sim
+from drivers.actuators.messages import BrakeCommand, BrakeTelemetry, Lamps, SteeringMode
+from drivers.pc104.messages import HighLevelState, MotionPattern
+from tests.runtime.twin_view import TwinView
 from tools.fake_notify import FakeNotifySocket
 
 pytestmark = pytest.mark.slow
 
-READY_TIMEOUT_S = 10.0
+READY_TIMEOUT_S = 30.0  # the simulated vehicle's process starts first (imports, site)
 LIVENESS_TIMEOUT_S = 5.0  # things that must happen, eventually, on a loaded machine
 REACTION_LIMIT_S = 0.1  # one control period plus telemetry delay, with room to spare
 POLL_S = 0.01
 LATENCY_POLL_S = 0.002  # finer, so a measured latency is not mostly polling
 WATCHDOG_S = 0.4  # WatchdogSec= for the hang test: pings every 0.2 s
-HL_HEARTBEAT_ID = protocol.spec_for(HlHeartbeat).frame_id
 
 
 # ---------------------------------------------------------------- recording what happens
@@ -88,30 +77,6 @@ class ModeLog:
 
     def entered_s(self, mode: Mode, after_s: float) -> float | None:
         return next((at_s for at_s, m in self.changes if m is mode and at_s > after_s), None)
-
-
-class HlHeartbeatSniffer(can.Listener):
-    """A third node on the daemon's virtual CAN bus: decodes every HL_Heartbeat it hears."""
-
-    def __init__(self, channel: str) -> None:
-        self.bus = can.Bus(interface="virtual", channel=channel)
-        self.states: list[HighLevelState] = []
-        self.notifier = can.Notifier(self.bus, [self])
-
-    @property
-    def latest(self) -> HighLevelState | None:
-        return self.states[-1] if self.states else None
-
-    def on_message_received(self, msg: can.Message) -> None:
-        if msg.arbitration_id != HL_HEARTBEAT_ID or msg.is_error_frame:
-            return
-        frame = protocol.decode(msg.arbitration_id, bytes(msg.data), time.monotonic())
-        assert isinstance(frame.message, HlHeartbeat)
-        self.states.append(frame.message.state)
-
-    def close(self) -> None:
-        self.notifier.stop()
-        self.bus.shutdown()
 
 
 class BrakePedalTap:
@@ -150,13 +115,9 @@ class BrakePedalTap:
 @dataclass
 class Sim:
     daemon: Daemon
-    twins: ActuatorTwins
-    pc104: Pc104Twin
-    scanners: dict[str, Lms111Twin]
-    world: SimWorld
+    twins: TwinView  # the simulated vehicle, through its bench socket
     socket_path: str
     modes: ModeLog
-    heartbeats: HlHeartbeatSniffer
     # False for a test that leaves a task stuck: the daemon then reports a forced exit.
     clean_exit_expected: bool = True
     result: RunResult | None = None
@@ -168,26 +129,15 @@ class Sim:
     def status_text(self) -> str:
         doc = self.daemon.status_document()
         doc["fault_history"] = doc.get("fault_history", [])[-5:]
+        doc["twins"] = self.twins.state
+        doc["bench_errors"] = self.twins.poll_errors[-5:]
         return json.dumps(doc, indent=1, default=str)
 
     def fault_keys(self) -> set[str]:
         return {fault["key"] for fault in self.daemon.status_document()["faults"]}
 
-    def steering_mode(self) -> SteeringMode | None:
-        command = self.twins.steering.command
-        return None if command is None else command.mode
-
-    def pc104_pattern(self) -> MotionPattern | None:
-        command = self.pc104.core.command
-        return None if command is None else command.pattern
-
-    def pc104_moving(self) -> bool:
-        pattern = self.pc104_pattern()
-        return pattern is not None and pattern is not MotionPattern.STOP
-
-    def brake_applied(self) -> bool:
-        command = self.twins.brake.command
-        return command is not None and command.enable
+    async def press(self, button: str) -> None:
+        await self.twins.act("press", button=button)
 
 
 def free_port() -> int:
@@ -198,13 +148,14 @@ def free_port() -> int:
 
 
 def isolated_sim_config() -> VehicleConfig:
-    """The sim profile inline, on its own CAN channel and free scanner ports (parallel runs)."""
-    config = inline_sim(load_config("sim"))
+    """The sim profile as shipped, on free scanner ports (parallel runs).
+
+    The PC104 link needs no isolation: it runs through a simulated SLCAN adapter on a
+    pty in the simulated vehicle's own directory.
+    """
+    config = load_config("sim")
     devices = config.devices.model_copy(
         update={
-            "can": config.devices.can.model_copy(
-                update={"channel": f"dbw-test-{uuid.uuid4().hex[:8]}"}
-            ),
             "lms111_left": config.devices.lms111_left.model_copy(update={"port": free_port()}),
             "lms111_right": config.devices.lms111_right.model_copy(update={"port": free_port()}),
         }
@@ -218,33 +169,24 @@ async def running_sim() -> AsyncIterator[Sim]:
     config = isolated_sim_config()
     directory = tempfile.mkdtemp(prefix="dbw-", dir="/tmp")  # sun_path is 108 bytes
     socket_path = str(Path(directory) / "control.sock")
-    heartbeats = HlHeartbeatSniffer(config.devices.can.channel)
     daemon = Daemon(config, control_socket=socket_path)
-    simulator = daemon.io.simulator
-    assert simulator is not None
-    assert simulator.board_twins is not None and simulator.pc104_twin is not None
+    sim_process = daemon.io.sim_process
+    assert sim_process is not None and daemon.io.simulator is None
+    twins = TwinView(sim_process.bench_path)
     modes = ModeLog()
     daemon.control.on_output.append(modes.on_output)
-    sim = Sim(
-        daemon=daemon,
-        twins=simulator.board_twins,
-        pc104=simulator.pc104_twin,
-        scanners=simulator.scanner_twins,
-        world=simulator.world,
-        socket_path=socket_path,
-        modes=modes,
-        heartbeats=heartbeats,
-    )
+    sim = Sim(daemon=daemon, twins=twins, socket_path=socket_path, modes=modes)
     run: asyncio.Future[RunResult] = asyncio.ensure_future(daemon.run(handle_signals=False))
     try:
         await wait_until(sim, lambda: sim.mode is Mode.READY, READY_TIMEOUT_S, "mode READY")
+        await twins.start()
         yield sim
     finally:
+        await twins.close()
         daemon.request_stop("test over")
         try:
             sim.result = await asyncio.wait_for(run, 5.0)
         finally:
-            await asyncio.to_thread(heartbeats.close)  # joins python-can's receive thread
             shutil.rmtree(directory, ignore_errors=True)
     if sim.clean_exit_expected:
         assert sim.result.exit_code == 0 and not sim.result.must_force_exit, sim.result
@@ -272,7 +214,11 @@ async def latencies(
     probes: Mapping[str, Callable[[], bool]],
     timeout_s: float = LIVENESS_TIMEOUT_S,
 ) -> dict[str, float]:
-    """Seconds from ``started_s`` until each probe was first seen true (fine polling)."""
+    """Seconds from ``started_s`` until each probe was first seen true (fine polling).
+
+    A probe of a twin reads the bench's latest observation, so its latency is known to
+    ``twin_view.BENCH_POLL_S``.
+    """
     seen: dict[str, float] = {}
     while len(seen) < len(probes):
         now_s = time.monotonic()
@@ -305,11 +251,12 @@ def report(test: str, figures: Mapping[str, float]) -> None:
 
 async def engage(sim: Sim) -> None:
     """Press engage and wait until both steering paths are automatic."""
-    sim.twins.panel.press("engage")
+    twins = sim.twins
+    await sim.press("engage")
     await wait_until(sim, lambda: sim.mode is Mode.ENGAGED, LIVENESS_TIMEOUT_S, "ENGAGED")
     await wait_until(
         sim,
-        lambda: sim.steering_mode() is SteeringMode.POSITION and sim.pc104_moving(),
+        lambda: twins.steering_mode() is SteeringMode.POSITION and twins.pc104_moving(),
         LIVENESS_TIMEOUT_S,
         "steering POSITION and a PC104 motion pattern",
     )
@@ -322,7 +269,7 @@ async def recover_to_ready(sim: Sim) -> None:
     )
     await holds(sim, lambda: sim.mode is Mode.ERROR, 0.3, "ERROR stays latched")
     cleared_s = time.monotonic()
-    sim.twins.panel.press("manual_override")
+    await sim.press("manual_override")
     await wait_until(sim, lambda: sim.mode is Mode.READY, LIVENESS_TIMEOUT_S, "READY")
     assert Mode.ENGAGED not in sim.modes.entered_after(cleared_s)
 
@@ -332,59 +279,59 @@ async def recover_to_ready(sim: Sim) -> None:
 
 async def test_engage_from_the_panel_commands_every_path() -> None:
     async with running_sim() as sim:
+        twins = sim.twins
         # READY: nothing automatic yet (so the checks below can tell the difference).
-        await wait_until(
-            sim, lambda: sim.heartbeats.latest is HighLevelState.STANDBY, 2.0, "HL STANDBY"
-        )
-        assert sim.steering_mode() is not SteeringMode.POSITION
-        assert not sim.pc104_moving()
-        assert not sim.twins.panel.lamps & Lamps.ENGAGED
+        await wait_until(sim, lambda: twins.hl_state() is HighLevelState.STANDBY, 2.0, "HL STANDBY")
+        await twins.refresh()
+        assert twins.steering_mode() is not SteeringMode.POSITION
+        assert not twins.pc104_moving()
+        assert not twins.lamps() & Lamps.ENGAGED
 
         pressed_s = time.monotonic()
-        sim.twins.panel.press("engage")
+        await sim.press("engage")
         figures = await latencies(
             sim,
             pressed_s,
             {
                 "ENGAGED": lambda: sim.mode is Mode.ENGAGED,
-                "steering POSITION": lambda: sim.steering_mode() is SteeringMode.POSITION,
-                "PC104 motion pattern": sim.pc104_moving,
-                "panel lamp ENGAGED": lambda: bool(sim.twins.panel.lamps & Lamps.ENGAGED),
-                "HL heartbeat ENGAGED": lambda: sim.heartbeats.latest is HighLevelState.ENGAGED,
+                "steering POSITION": lambda: twins.steering_mode() is SteeringMode.POSITION,
+                "PC104 motion pattern": twins.pc104_moving,
+                "panel lamp ENGAGED": lambda: bool(twins.lamps() & Lamps.ENGAGED),
+                "HL heartbeat ENGAGED": lambda: twins.hl_state() is HighLevelState.ENGAGED,
             },
         )
         report("engage", figures)
-        assert sim.pc104_pattern() is MotionPattern.COUNTER_STEER  # the sim's default pattern
-        assert not sim.twins.panel.lamps & (Lamps.WARNING | Lamps.OVERRIDE)
-        assert sim.twins.panel.display_text == "ENGAGED"
+        await wait_until(sim, lambda: twins.display_text() == "ENGAGED", 1.0, "panel text")
+        assert twins.pc104_pattern() is MotionPattern.COUNTER_STEER  # the sim's default pattern
+        assert not twins.lamps() & (Lamps.WARNING | Lamps.OVERRIDE)
         await holds(sim, lambda: sim.mode is Mode.ENGAGED, 0.5, "ENGAGED")
 
 
 async def test_speed_hold_holds_the_speed_and_a_brake_tap_cancels_it() -> None:
     async with running_sim() as sim:
+        twins = sim.twins
         await engage(sim)
-        throttle, brake, panel = sim.twins.throttle, sim.twins.brake, sim.twins.panel
-        throttle.operator_pedal(40.0)
-        await wait_until(sim, lambda: sim.world.state.speed_mps > 0.3, 10.0, "vehicle moving")
-        speed_at_press = sim.world.state.speed_mps
-        panel.press("speed_plus")
+        await twins.act("pedal", pedal="throttle", pct=40.0)
+        await wait_until(sim, lambda: twins.speed_mps() > 0.3, 10.0, "vehicle moving")
+        speed_at_press = (await twins.refresh())["world"]["speed_mps"]
+        await sim.press("speed_plus")
         await wait_until(sim, lambda: sim.mode is Mode.SPEED_HOLD, 1.0, "SPEED_HOLD")
         set_speed = sim.daemon.core.state.set_speed_mps
         assert set_speed is not None
         assert set_speed == pytest.approx(speed_at_press, abs=0.1)
-        throttle.operator_pedal(0.0)
+        await twins.act("pedal", pedal="throttle", pct=0.0)
 
         def holding() -> bool:
-            in_band = abs(sim.world.state.speed_mps - set_speed) <= 0.3
+            in_band = abs(twins.speed_mps() - set_speed) <= 0.3
             return in_band and sim.mode is Mode.SPEED_HOLD
 
         await holds(sim, holding, 2.0, f"speed held at {set_speed:.2f} m/s +- 0.3")
-        print(f"[speed] set {set_speed:.3f} m/s, after 2 s {sim.world.state.speed_mps:.3f} m/s")
+        print(f"[speed] set {set_speed:.3f} m/s, after 2 s {twins.speed_mps():.3f} m/s")
 
         tap = BrakePedalTap(sim.daemon)
         try:
             tapped_s = time.monotonic()
-            brake.operator_brake_tap(30.0, 0.2)
+            await twins.act("brake_tap", pct=30.0, duration_s=0.2)
             await wait_until(sim, lambda: sim.mode is Mode.ENGAGED, 1.0, "ENGAGED after the tap")
             margin = sim.daemon.config.safety.pedal_override_margin_pct
             await wait_until(
@@ -400,75 +347,77 @@ async def test_speed_hold_holds_the_speed_and_a_brake_tap_cancels_it() -> None:
         assert seen_s is not None and engaged_s is not None
         report("brake tap", {"telemetry -> ENGAGED": engaged_s - seen_s})
         assert 0.0 <= engaged_s - seen_s <= REACTION_LIMIT_S
-        assert sim.steering_mode() is SteeringMode.POSITION
-        assert sim.pc104_moving()  # steering stays automatic; only the speed went back
+        await twins.refresh()
+        assert twins.steering_mode() is SteeringMode.POSITION
+        assert twins.pc104_moving()  # steering stays automatic; only the speed went back
         assert sim.daemon.core.state.set_speed_mps is None
 
 
 async def test_manual_override_hands_everything_back_within_a_cycle() -> None:
     async with running_sim() as sim:
+        twins = sim.twins
         await engage(sim)
         pressed_s = time.monotonic()
-        sim.twins.panel.press("manual_override")
+        await sim.press("manual_override")
         figures = await latencies(
             sim,
             pressed_s,
             {
                 "READY": lambda: sim.mode is Mode.READY,
-                "steering RELEASE": lambda: sim.steering_mode() is SteeringMode.RELEASE,
-                "PC104 STOP": lambda: sim.pc104_pattern() is MotionPattern.STOP,
+                "steering RELEASE": lambda: twins.steering_mode() is SteeringMode.RELEASE,
+                "PC104 STOP": lambda: twins.pc104_pattern() is MotionPattern.STOP,
             },
         )
         report("manual override", figures)
         assert max(figures.values()) <= REACTION_LIMIT_S, figures
-        await wait_until(
-            sim, lambda: sim.heartbeats.latest is HighLevelState.STANDBY, 1.0, "HL STANDBY"
-        )
-        assert not sim.twins.panel.lamps & Lamps.ENGAGED
+        await wait_until(sim, lambda: twins.hl_state() is HighLevelState.STANDBY, 1.0, "HL STANDBY")
+        await wait_until(sim, lambda: not twins.lamps() & Lamps.ENGAGED, 1.0, "lamp off")
         await holds(sim, lambda: sim.mode is Mode.READY, 0.3, "READY")
 
 
 async def test_hands_on_the_wheel_are_an_override_not_a_fault() -> None:
     async with running_sim() as sim:
+        twins = sim.twins
         await engage(sim)
-        steering = sim.twins.steering
         config = sim.daemon.config
-        held_rad = steering.wheel_angle_rad + math.radians(10.0) * steering.params.steering_ratio
+        steering = (await twins.refresh())["steering"]
+        held_rad = steering["wheel_angle_rad"] + math.radians(10.0) * steering["steering_ratio"]
         gripped_s = time.monotonic()
-        steering.operator_hands(held_rad)
+        await twins.act("hands", wheel_rad=held_rad)
         try:
             figures = await latencies(
                 sim,
                 gripped_s,
                 {
                     "READY": lambda: sim.mode is Mode.READY,
-                    "steering RELEASE": lambda: sim.steering_mode() is SteeringMode.RELEASE,
-                    "PC104 STOP": lambda: sim.pc104_pattern() is MotionPattern.STOP,
+                    "steering RELEASE": lambda: twins.steering_mode() is SteeringMode.RELEASE,
+                    "PC104 STOP": lambda: twins.pc104_pattern() is MotionPattern.STOP,
                 },
             )
             report("hands on the wheel", figures)
             assert max(figures.values()) <= config.safety.steer_override_dwell_s + 0.1, figures
             await holds(sim, lambda: sim.mode is Mode.READY, 0.5, "READY while the hands stay")
         finally:
-            steering.operator_hands(None)
+            await twins.act("hands", wheel_rad=None)
         assert Mode.ERROR not in sim.modes.entered_after(gripped_s)
         assert not sim.daemon.status_document()["faults"]
 
 
 async def test_unplugged_board_latches_error_until_override() -> None:
     async with running_sim() as sim:
+        twins = sim.twins
         await engage(sim)
         config = sim.daemon.config
         unplugged_s = time.monotonic()
-        sim.twins.steering.unplug()
+        await twins.act("unplug", board="steering")
         figures = await latencies(
             sim,
             unplugged_s,
             {
                 "ERROR": lambda: sim.mode is Mode.ERROR,
-                "brake applied": sim.brake_applied,
-                "PC104 STOP": lambda: sim.pc104_pattern() is MotionPattern.STOP,
-                "panel WARNING": lambda: bool(sim.twins.panel.lamps & Lamps.WARNING),
+                "brake applied": twins.brake_applied,
+                "PC104 STOP": lambda: twins.pc104_pattern() is MotionPattern.STOP,
+                "panel WARNING": lambda: bool(twins.lamps() & Lamps.WARNING),
             },
         )
         report("steering board unplugged", figures)
@@ -482,10 +431,11 @@ async def test_unplugged_board_latches_error_until_override() -> None:
             1.0,
             "steering pot and board stale",
         )
-        assert not sim.twins.panel.lamps & Lamps.ENGAGED
+        await twins.refresh()
+        assert not twins.lamps() & Lamps.ENGAGED
 
         replugged_s = time.monotonic()
-        sim.twins.steering.replug()
+        await twins.act("replug", board="steering")
         await recover_to_ready(sim)
         await holds(sim, lambda: sim.mode is Mode.READY, 1.0, "READY without a new engage press")
         assert Mode.ENGAGED not in sim.modes.entered_after(replugged_s)
@@ -494,17 +444,18 @@ async def test_unplugged_board_latches_error_until_override() -> None:
 
 async def test_silent_pc104_is_an_error_until_it_talks_and_override() -> None:
     async with running_sim() as sim:
+        twins = sim.twins
         await engage(sim)
         dropped_s = time.monotonic()
-        sim.pc104.faults.drop_all = True
+        await twins.act("pc104_faults", drop_all=True)
         try:
             figures = await latencies(
                 sim,
                 dropped_s,
                 {
                     "ERROR": lambda: sim.mode is Mode.ERROR,
-                    "steering RELEASE": lambda: sim.steering_mode() is SteeringMode.RELEASE,
-                    "brake applied": sim.brake_applied,
+                    "steering RELEASE": lambda: twins.steering_mode() is SteeringMode.RELEASE,
+                    "brake applied": twins.brake_applied,
                 },
             )
             report("PC104 silent", figures)
@@ -513,12 +464,13 @@ async def test_silent_pc104_is_an_error_until_it_talks_and_override() -> None:
             assert "stale:pc104.status" in sim.fault_keys()
             await holds(sim, lambda: sim.mode is Mode.ERROR, 0.3, "ERROR while silent")
         finally:
-            sim.pc104.faults.drop_all = False
+            await twins.act("pc104_faults", drop_all=False)
         await recover_to_ready(sim)
 
 
 async def test_link_errors_beyond_the_budget_fault_but_a_few_bad_frames_do_not() -> None:
     async with running_sim() as sim:
+        twins = sim.twins
         await engage(sim)
         # Three corrupted board frames: a 30 ms gap, inside the 100 ms age limit.
         boards = sim.daemon.io.boards
@@ -526,13 +478,13 @@ async def test_link_errors_beyond_the_budget_fault_but_a_few_bad_frames_do_not()
         throttle = boards.throttle
         crc_before = throttle.health().crc_errors
         corrupted_s = time.monotonic()
-        sim.twins.throttle.corrupt_next_frames(3)
+        await twins.act("corrupt", board="throttle", frames=3)
         await holds(sim, lambda: sim.mode is Mode.ENGAGED, 0.5, "ENGAGED through 3 bad frames")
         assert throttle.health().crc_errors - crc_before == 3
         assert sim.modes.since(corrupted_s) == [Mode.ENGAGED]
 
         # Every PC104 frame corrupted: the error budget runs out.
-        sim.pc104.faults.bad_crc = True
+        await twins.act("pc104_faults", bad_crc=True)
         try:
             await wait_until(sim, lambda: sim.mode is Mode.ERROR, 2.0, "ERROR on bad CRCs")
             await wait_until(
@@ -541,27 +493,29 @@ async def test_link_errors_beyond_the_budget_fault_but_a_few_bad_frames_do_not()
             # The safe command leaves in the faulting cycle; the twin reads it a moment later.
             await wait_until(
                 sim,
-                lambda: sim.steering_mode() is not SteeringMode.POSITION,
+                lambda: twins.steering_mode() is not SteeringMode.POSITION,
                 0.5,
                 "steering handed back",
             )
         finally:
-            sim.pc104.faults.bad_crc = False
+            await twins.act("pc104_faults", bad_crc=False)
         await recover_to_ready(sim)
 
 
 async def test_killed_scanner_twin_is_stale_scan_input_and_an_error() -> None:
     async with running_sim() as sim:
+        twins = sim.twins
         await engage(sim)
         killed_s = time.monotonic()
-        await sim.scanners["left"].stop()  # powered off: listener and connection gone
+        # Powered off: listener and connection gone.
+        await twins.act("scanner_power", side="left", on=False)
         figures = await latencies(
             sim,
             killed_s,
             {
                 "ERROR": lambda: sim.mode is Mode.ERROR,
-                "steering RELEASE": lambda: sim.steering_mode() is SteeringMode.RELEASE,
-                "PC104 STOP": lambda: sim.pc104_pattern() is MotionPattern.STOP,
+                "steering RELEASE": lambda: twins.steering_mode() is SteeringMode.RELEASE,
+                "PC104 STOP": lambda: twins.pc104_pattern() is MotionPattern.STOP,
             },
         )
         report("scanner killed", figures)
@@ -570,12 +524,16 @@ async def test_killed_scanner_twin_is_stale_scan_input_and_an_error() -> None:
         inputs = sim.daemon.status_document()["inputs"]
         assert inputs["scan.left"]["stale"] and not inputs["scan.right"]["stale"]
         await holds(sim, lambda: sim.mode is Mode.ERROR, 0.5, "ERROR while the scanner is off")
+        # Powered on again: the client reconnects, the fault clears, the mode stays latched.
+        await twins.act("scanner_power", side="left", on=True)
+        await recover_to_ready(sim)
 
 
 async def test_crashed_control_service_restarts_safe_and_never_reengages(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
     async with running_sim() as sim:
+        twins = sim.twins
         await engage(sim)
         core = sim.daemon.core
         real_step, real_reset = core.step, core.reset
@@ -601,10 +559,10 @@ async def test_crashed_control_service_restarts_safe_and_never_reengages(
             patched_s,
             {
                 "brake 100 %": lambda: (
-                    sim.twins.brake.command == BrakeCommand(enable=True, position_pct=100.0)
+                    twins.brake_command() == BrakeCommand(enable=True, position_pct=100.0)
                 ),
-                "steering RELEASE": lambda: sim.steering_mode() is SteeringMode.RELEASE,
-                "PC104 STOP": lambda: sim.pc104_pattern() is MotionPattern.STOP,
+                "steering RELEASE": lambda: twins.steering_mode() is SteeringMode.RELEASE,
+                "PC104 STOP": lambda: twins.pc104_pattern() is MotionPattern.STOP,
                 "restart scheduled": lambda: record.budget.total_restarts == 1,
             },
         )
@@ -617,7 +575,8 @@ async def test_crashed_control_service_restarts_safe_and_never_reengages(
         assert sim.daemon.supervisor.latched_error is None
         await holds(sim, lambda: sim.mode is Mode.READY, 2.0, "READY, not re-engaged")
         assert Mode.ENGAGED not in sim.modes.entered_after(crashes[0])
-        assert sim.steering_mode() is not SteeringMode.POSITION
+        await twins.refresh()
+        assert twins.steering_mode() is not SteeringMode.POSITION
 
 
 async def test_stuck_control_loop_withholds_watchdog_pings(
@@ -630,6 +589,7 @@ async def test_stuck_control_loop_withholds_watchdog_pings(
     hung_at: list[float] = []
     try:
         async with running_sim() as sim:
+            twins = sim.twins
             await asyncio.to_thread(notify_socket.wait_for, "WATCHDOG=1", 5.0)
             await engage(sim)
             ticker = sim.daemon.control.ticker
@@ -653,8 +613,8 @@ async def test_stuck_control_loop_withholds_watchdog_pings(
                 hung_at[0],
                 {
                     "HUNG": lambda: record.state is ServiceState.HUNG,
-                    "steering latched": lambda: sim.twins.steering.command is None,
-                    "PC104 STOP": lambda: sim.pc104.core.applied_pattern is MotionPattern.STOP,
+                    "steering latched": lambda: not twins.steering_commanded(),
+                    "PC104 STOP": lambda: twins.pc104_applied() is MotionPattern.STOP,
                 },
             )
             report("control loop stuck", figures)
@@ -680,41 +640,41 @@ async def test_stuck_control_loop_withholds_watchdog_pings(
 
 async def test_estop_latches_until_released_and_reset() -> None:
     async with running_sim() as sim:
+        twins = sim.twins
         await engage(sim)
-        panel, brake = sim.twins.panel, sim.twins.brake
         pushed_s = time.monotonic()
-        panel.estop(True)
+        await twins.act("estop", pressed=True)
         figures = await latencies(
             sim,
             pushed_s,
             {
                 "ESTOP": lambda: sim.mode is Mode.ESTOP,
-                "steering latched": lambda: sim.twins.steering.command is None,
-                "PC104 STOP": lambda: sim.pc104_pattern() is MotionPattern.STOP,
+                "steering latched": lambda: not twins.steering_commanded(),
+                "PC104 STOP": lambda: twins.pc104_pattern() is MotionPattern.STOP,
             },
         )
         report("e-stop", figures)
         await wait_until(
-            sim, lambda: brake.actuator_position_pct >= 99.0, 2.0, "brake actuator at full"
+            sim, lambda: twins.brake_actuator_pct() >= 99.0, 2.0, "brake actuator at full"
         )
         output = sim.daemon.control.last_output
         assert output is not None
         assert output.brake == BrakeCommand(enable=True, position_pct=100.0)
-        assert panel.lamps & Lamps.WARNING
+        await wait_until(sim, lambda: bool(twins.lamps() & Lamps.WARNING), 1.0, "warning lamp")
 
         for _ in range(2):
-            panel.press("manual_override")
+            await sim.press("manual_override")
             await holds(
                 sim, lambda: sim.mode is Mode.ESTOP, 0.3, "ESTOP while the mushroom is down"
             )
-        panel.estop(False)
+        await twins.act("estop", pressed=False)
         await holds(sim, lambda: sim.mode is Mode.ESTOP, 0.3, "ESTOP latched after the release")
         released_s = time.monotonic()
-        panel.press("manual_override")
+        await sim.press("manual_override")
         await wait_until(sim, lambda: sim.mode is Mode.READY, LIVENESS_TIMEOUT_S, "READY")
         assert Mode.ENGAGED not in sim.modes.entered_after(released_s)
         await wait_until(
-            sim, lambda: not panel.lamps & Lamps.WARNING, 1.0, "warning lamp off in READY"
+            sim, lambda: not twins.lamps() & Lamps.WARNING, 1.0, "warning lamp off in READY"
         )
 
 
@@ -738,6 +698,7 @@ def printed_document(stdout: str) -> dict[str, Any]:
 
 async def test_status_and_engage_through_the_control_socket() -> None:
     async with running_sim() as sim:
+        twins = sim.twins
         path = sim.socket_path
         await wait_until(
             sim, lambda: not sim.daemon.status_document()["faults"], 2.0, "no faults in READY"
@@ -755,7 +716,7 @@ async def test_status_and_engage_through_the_control_socket() -> None:
         reply = await query(path, {"op": "command", "name": "engage"})
         assert reply == {"ok": True, "accepted": True, "message": "ready -> engaged"}
         await wait_until(
-            sim, lambda: sim.steering_mode() is SteeringMode.POSITION, 1.0, "steering POSITION"
+            sim, lambda: twins.steering_mode() is SteeringMode.POSITION, 1.0, "steering POSITION"
         )
         status = await query(path, {"op": "status"})
         assert status["status"]["mode"] == "engaged"
@@ -764,7 +725,7 @@ async def test_status_and_engage_through_the_control_socket() -> None:
         await wait_until(sim, lambda: sim.mode is Mode.READY, 1.0, "READY")
 
         # A foot on the brake in READY: refused, and the reason says so.
-        sim.twins.brake.operator_pedal(30.0)
+        await twins.act("pedal", pedal="brake", pct=30.0)
         await wait_until(
             sim, lambda: sim.daemon.status_document()["overrides"]["brake_pedal"], 1.0, "pedal"
         )
@@ -772,10 +733,10 @@ async def test_status_and_engage_through_the_control_socket() -> None:
         assert result.exit_code == 1, result.output
         assert "engage: refused" in result.stderr, result.output
         assert "operator overriding" in result.stderr, result.output
-        sim.twins.brake.operator_pedal(0.0)
+        await twins.act("pedal", pedal="brake", pct=0.0)
         assert sim.mode is Mode.READY
 
-        sim.twins.brake.unplug()
+        await twins.act("unplug", board="brake")
         await wait_until(sim, lambda: sim.mode is Mode.ERROR, 2.0, "ERROR, brake unplugged")
         reply = await query(path, {"op": "command", "name": "engage"})
         assert reply["ok"] and reply["accepted"] is False, reply
@@ -788,12 +749,12 @@ async def test_status_and_engage_through_the_control_socket() -> None:
         assert status["mode"] == "error"
         assert "stale:board.brake" in {fault["key"] for fault in status["faults"]}
         assert status["inputs"]["board.brake"]["stale"]
-        sim.twins.brake.replug()
+        await twins.act("replug", board="brake")
 
 
 async def test_cli_names_a_refusal_once() -> None:
     async with running_sim() as sim:
-        sim.twins.brake.operator_pedal(30.0)
+        await sim.twins.act("pedal", pedal="brake", pct=30.0)
         await wait_until(
             sim, lambda: sim.daemon.status_document()["overrides"]["brake_pedal"], 1.0, "pedal"
         )

@@ -157,6 +157,7 @@ class Lms111Twin:
         self._handlers: set[asyncio.Task[Any]] = set()  # one per connection
         self._peers: set[_Peer] = set()
         self._boot_until_s = 0.0
+        self._run_streams = False  # `run` streams itself, even while powered off
 
     # ---- lifecycle ------------------------------------------------------------------
     @property
@@ -176,10 +177,20 @@ class Lms111Twin:
     async def run(self, beat: Callable[[], None]) -> None:
         """The daemon's service: serve until cancelled, beating once per scan period."""
         await self._power_up()
+        self._run_streams = True
         try:
             await self._stream_loop(beat)
         finally:
+            self._run_streams = False
             await self.stop()
+
+    async def power_on(self) -> None:
+        """Power up again after :meth:`stop` (a no-op while running): the boot starts over."""
+        if self._server is not None:
+            return
+        await self._power_up()
+        if not self._run_streams:
+            self._own(self._stream_loop(None), "stream")
 
     async def stop(self) -> None:
         """Power off: close the listener and every connection, join our tasks.

@@ -31,6 +31,8 @@ from drivers.pc104.errorframes import BusCondition, error_frame
 from drivers.pc104.messages import (
     PULSE_COUNTER_MODULO,
     ControlSource,
+    HighLevelState,
+    HlHeartbeat,
     Inclinometer,
     Message,
     MotionCommand,
@@ -154,6 +156,7 @@ class Pc104TwinCore:
         self.control_source = ControlSource.AUTOMATIC
         self.stop_required = True
         self.applied_pattern = MotionPattern.STOP
+        self.hl_state: HighLevelState | None = None  # from the last HL_Heartbeat heard
         self.bad_command_frames = 0
         self.last_invalid_s = -math.inf
         self.frames_sent = 0
@@ -177,8 +180,12 @@ class Pc104TwinCore:
         except protocol.Pc104ProtocolError:
             self._invalid(now_s, arbitration_id)
             return
+        if isinstance(message, HlHeartbeat):
+            # Liveness only (the command timeout is what stops us); kept for the bench.
+            self.hl_state = message.state
+            return
         if not isinstance(message, MotionCommand):
-            return  # HL_Heartbeat: liveness only; the command timeout is what stops us
+            return
         verdict = self.command_monitor.update(now_s, counter)
         if verdict is RxVerdict.ACCEPTED:
             self.command = message
