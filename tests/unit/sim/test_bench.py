@@ -52,7 +52,8 @@ def test_any_json_is_a_request_or_a_bench_request_error(message: Any) -> None:
     try:
         request = parse_request(message)
     except BenchRequestError as exc:
-        assert str(exc)
+        error = str(exc)
+        assert error
     else:
         assert request.op in OPS
 
@@ -66,7 +67,8 @@ def test_known_ops_with_any_fields_never_raise_anything_else(op: str, fields: di
     try:
         parse_request({"op": op, **fields})
     except BenchRequestError as exc:
-        assert op in str(exc)
+        error = str(exc)
+        assert op in error
 
 
 @pytest.mark.parametrize(
