@@ -106,17 +106,20 @@ class Watch:
 
     faults: Counter[str] = field(default_factory=Counter)
     modes: list[str] = field(default_factory=list)
+    raised_at_s: list[float] = field(default_factory=list)  # time.monotonic() of each
 
     def __call__(self, output: CoreOutput) -> None:
         for note in output.notes:
             if note.event == "fault_raised":
                 self.faults[str(note.fields["fault"])] += 1
+                self.raised_at_s.append(time.monotonic())
             elif note.event == "mode_changed":
                 self.modes.append(f"{note.fields['from_mode']}->{note.fields['to_mode']}")
 
     def clear(self) -> None:
         self.faults.clear()
         self.modes.clear()
+        self.raised_at_s.clear()
 
 
 class PhaseRecorder:
@@ -217,12 +220,16 @@ class Soak:
         end_s = wall0 + seconds
         steal0 = steal_before = probe.steal_s()
         worst_steal_s = 0.0  # the most steal in one sampling second of the phase
+        seconds_stolen: list[tuple[float, float, float]] = []  # (from, to, steal s)
+        sampled_s = time.monotonic()
         while (left_s := end_s - time.monotonic()) > 0:
             await asyncio.sleep(min(left_s, 1.0))
             steal_now = probe.steal_s()
+            now_s = time.monotonic()
             if steal_now is not None and steal_before is not None:
                 worst_steal_s = max(worst_steal_s, steal_now - steal_before)
-            steal_before = steal_now
+                seconds_stolen.append((sampled_s, now_s, steal_now - steal_before))
+            steal_before, sampled_s = steal_now, now_s
             lag = self.daemon.last_loop_lag
             if lag is not None and lag.longest_ms > worst_callback[0]:
                 worst_callback = (lag.longest_ms, lag.longest_by)
@@ -245,6 +252,7 @@ class Soak:
         faults = sum(self.watch.faults.values())
         fault_names = ", ".join(f"{k} x{v}" for k, v in sorted(self.watch.faults.items()))
         restarted = sim is not None and sim.pid != sim_pid
+        fault_steal = fault_steal_line(self.watch.raised_at_s, seconds_stolen)
         return [
             f"  {title} ({seconds:g} s, {mode0} -> {now.mode}"
             + (f", set speed {now.set_speed_mps:.2f} m/s" if now.set_speed_mps else "")
@@ -259,8 +267,29 @@ class Soak:
             f"    CPU: daemon {daemon_cpu:.0f} % of a core, simulated vehicle {sim_cpu:.0f} %"
             + ("; the simulated vehicle was RESTARTED" if restarted else ""),
             steal_line,
+            *([fault_steal] if fault_steal else []),
             *late.lines(),
         ]
+
+
+def fault_steal_line(
+    raised_at_s: list[float], seconds_stolen: list[tuple[float, float, float]]
+) -> str | None:
+    """For each fault, the host's steal in the sampling second it was raised in (or the
+    one before, for a fault at the edge): whether the stall that raised it coincides with
+    the hypervisor taking the CPU."""
+    if not raised_at_s or not seconds_stolen:
+        return None
+    stolen_ms = []
+    for at_s in raised_at_s:
+        index = next(
+            (i for i, (start_s, end_s, _) in enumerate(seconds_stolen) if start_s <= at_s < end_s),
+            len(seconds_stolen) - 1,
+        )
+        around = seconds_stolen[max(index - 1, 0) : index + 1]
+        stolen_ms.append(1000 * max(steal_s for _, _, steal_s in around))
+    shown = ", ".join(f"{ms:.0f}" for ms in stolen_ms)
+    return f"    host steal around each fault (its second or the one before, most): {shown} ms"
 
 
 def say(*lines: str) -> None:
