@@ -49,7 +49,7 @@ def handle(bench: SimBench, message: Any) -> dict[str, Any]:
     return reply
 
 
-@settings(max_examples=300)
+@settings(max_examples=300, deadline=None)
 @given(JSON)
 def test_any_json_is_a_request_or_a_bench_request_error(message: Any) -> None:
     try:
@@ -61,7 +61,7 @@ def test_any_json_is_a_request_or_a_bench_request_error(message: Any) -> None:
         assert request.op in OPS
 
 
-@settings(max_examples=200)
+@settings(max_examples=200, deadline=None)
 @given(
     st.sampled_from(OPS),
     st.dictionaries(
