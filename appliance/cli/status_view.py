@@ -30,6 +30,13 @@ def render_status(doc: dict[str, Any]) -> str:
         lines.append(f"hold-to-move: required, {held}")
     if doc.get("estop_latched") is True:
         lines.append("E-STOP LATCHED: `dbw estop-reset` once the vehicle is safe")
+    blockers = as_strings(doc.get("engage_blockers"))
+    if doc.get("mode") == "ready" and "engage_blockers" in doc:
+        if blockers:
+            lines.append("engage now: would be refused:")
+            lines += [f"  - {reason}" for reason in blockers]
+        else:
+            lines.append("engage now: would be accepted")
     refusals = as_strings(doc.get("last_refusal"))
     if refusals:
         lines.append("last refusal:")

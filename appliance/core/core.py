@@ -62,6 +62,7 @@ from appliance.modes import (
     SpeedPlusPressed,
     SteeringOverridden,
     ThrottlePedalPressed,
+    refusal_reasons,
     step,
 )
 from drivers.actuators.messages import (
@@ -256,6 +257,17 @@ class ControlCore:
             return True, f"set speed {self.state.set_speed_mps or 0.0:.2f} m/s"
         return True, f"{before.mode} -> {self.state.mode}"
 
+    def engage_blockers(self) -> tuple[str, ...]:
+        """Why an engage press would be refused now (empty: it would be accepted), judged
+        on the last cycle's conditions. READY means the vehicle is safe to hand over, not
+        that every source is up: a PC104 that has just booted reports its command timeout
+        until our commands reach it. `dbw status` shows this so the operator knows before
+        pressing."""
+        mode = self.state.mode
+        if mode is not Mode.READY and mode not in AUTOMATIC_MODES:
+            return (f"cannot engage from {mode}",)
+        return refusal_reasons(self.state, self._conditions)
+
     def status(self, now_s: float) -> dict[str, Any]:
         return core_status(
             state=self.state,
@@ -263,6 +275,7 @@ class ControlCore:
             measured=self._measured,
             hold_to_move_required=self.config.engagement.hold_to_move,
             last_refusal=self.last_refusal,
+            engage_blockers=self.engage_blockers(),
             faults=self.faults,
             last_output=self.last_output,
             now_s=now_s,

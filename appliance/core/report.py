@@ -21,6 +21,7 @@ def core_status(
     measured: Measurements | None,
     hold_to_move_required: bool,
     last_refusal: tuple[str, ...],
+    engage_blockers: tuple[str, ...],
     faults: FaultMonitor,
     last_output: CoreOutput | None,
     now_s: float,
@@ -38,6 +39,7 @@ def core_status(
         },
         "estop_latched": state.estop_latched,
         "last_refusal": list(last_refusal),
+        "engage_blockers": list(engage_blockers),
         "faults": [
             {"key": f.key, "detail": f.detail, "since_s": round(now_s - f.raised_s, 3)}
             for f in faults.active_faults.values()

@@ -179,6 +179,9 @@ async def running_sim() -> AsyncIterator[Sim]:
     run: asyncio.Future[RunResult] = asyncio.ensure_future(daemon.run(handle_signals=False))
     try:
         await wait_until(sim, lambda: sim.mode is Mode.READY, READY_TIMEOUT_S, "mode READY")
+        # READY is safe to hand over, not yet ready to engage: the PC104 reports its
+        # command timeout until our commands have reached it.
+        await wait_until_engageable(sim)
         await twins.start()
         yield sim
     finally:
@@ -249,9 +252,17 @@ def report(test: str, figures: Mapping[str, float]) -> None:
     print(f"[latency] {test}: {shown}")
 
 
+async def wait_until_engageable(sim: Sim) -> None:
+    await wait_until(
+        sim, lambda: not sim.daemon.core.engage_blockers(), LIVENESS_TIMEOUT_S, "engageable"
+    )
+
+
 async def engage(sim: Sim) -> None:
-    """Press engage and wait until both steering paths are automatic."""
+    """Press engage once nothing blocks it, and wait until both steering paths are
+    automatic."""
     twins = sim.twins
+    await wait_until_engageable(sim)
     await sim.press("engage")
     await wait_until(sim, lambda: sim.mode is Mode.ENGAGED, LIVENESS_TIMEOUT_S, "ENGAGED")
     await wait_until(

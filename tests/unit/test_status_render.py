@@ -128,6 +128,19 @@ def test_columns_of_the_inputs_table_line_up() -> None:
         assert line.index(limit, age_end) + len(limit) == limit_end, line
 
 
+def test_ready_says_whether_an_engage_press_would_be_accepted() -> None:
+    blocked = render_status(
+        {"mode": "ready", "engage_blockers": ["autopilot source not ready: PC104 not ready"]}
+    )
+    assert "engage now: would be refused:\n  - autopilot source not ready: PC104 not ready" in (
+        blocked
+    )
+    assert "engage now: would be accepted" in render_status(
+        {"mode": "ready", "engage_blockers": []}
+    )
+    assert "engage now" not in render_status({"mode": "engaged", "engage_blockers": []})
+
+
 def test_empty_document() -> None:
     assert render_status({}) == "UNKNOWN MODE"
 

@@ -234,6 +234,23 @@ def test_engage_is_refused_with_its_reason(
     assert out.mode is Mode.READY
     assert_released(out)
     assert any(reason in r for r in core.last_refusal)
+    # The status says so before anyone presses, with the same reason.
+    assert any(reason in r for r in core.engage_blockers())
+    assert any(reason in r for r in core.status(vehicle.now_s)["engage_blockers"])
+
+
+def test_engage_blockers_are_empty_exactly_when_a_press_is_accepted() -> None:
+    source = NotReadySource()
+    core, vehicle = bench(autopilot=source)
+    vehicle.step(core)
+    assert core.engage_blockers() == ("autopilot source not ready: no route loaded",)
+    source.ready = True
+    vehicle.step(core)
+    assert core.engage_blockers() == ()
+    assert core.request("engage", vehicle.now_s)[0]
+    vehicle.make_stale("board.brake")
+    assert vehicle.step(core).mode is Mode.ERROR
+    assert core.engage_blockers() == ("cannot engage from error",)
 
 
 def test_every_reason_is_named_at_once() -> None:
