@@ -18,8 +18,9 @@ Resynchronisation rules (a scanner stream must survive a corrupted telegram):
 * bytes before a start marker are garbage: dropped silently and counted in `garbage_bytes`
   (a connection usually starts mid-telegram);
 * CoLa-A: a new STX before the ETX means the telegram was truncated. It is dropped, counted
-  in `malformed_telegrams`, and `ProtocolError` is raised; the framer has already resynced on
-  the new STX, so the next `next_event()` continues with it;
+  in `malformed_telegrams`, and `TruncatedTelegram` (a `ProtocolError`) is raised; the framer
+  has already resynced on the new STX, so the next `next_event()` continues with it. A device
+  ignores such a frame silently (a CoLa-B request looks like one), hence the distinct type;
 * CoLa-B: a length of 0 or above ``max_telegram_bytes``, or a bad checksum, drops the frame
   the same way. After a bad checksum, if the bytes right after the frame start a magic the
   whole frame is skipped (the payload was corrupted); otherwise the length itself is suspect
@@ -38,7 +39,7 @@ from typing import Final, Literal
 
 import numpy as np
 
-from drivers.lms111.errors import ProtocolError
+from drivers.lms111.errors import ProtocolError, TruncatedTelegram
 
 STX: Final = 0x02
 ETX: Final = 0x03
@@ -179,10 +180,12 @@ class ColaFramer:
         del self._buf[:count]
         self._scanned = 0
 
-    def _malformed(self, drop: int, why: str) -> ProtocolError:
+    def _malformed(
+        self, drop: int, why: str, error: type[ProtocolError] = ProtocolError
+    ) -> ProtocolError:
         self._drop_front(drop)
         self._malformed_telegrams += 1
-        return ProtocolError(why)
+        return error(why)
 
     def _next_cola_a(self) -> Telegram | NeedData:
         buf = self._buf
@@ -198,7 +201,8 @@ class ColaFramer:
         etx = buf.find(ETX, search_from)
         stx = buf.find(STX, search_from, etx if etx >= 0 else len(buf))
         if stx >= 0:
-            raise self._malformed(stx, f"CoLa-A telegram truncated after {stx - 1} bytes")
+            why = f"CoLa-A telegram truncated after {stx - 1} bytes"
+            raise self._malformed(stx, why, TruncatedTelegram)
         if etx < 0:
             if len(buf) - 1 > self._max_telegram_bytes:
                 raise self._malformed(len(buf), "CoLa-A telegram exceeds the size limit")

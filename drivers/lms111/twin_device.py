@@ -7,8 +7,8 @@ start-up (clearpath ``LMS1xx``, SICK ``sick_scan_xd``) with the replies a real d
 
 * reads: ``DeviceIdent``, ``FirmwareVersion``, ``SerialNumber``, ``LocationName``,
   ``SCdevicestate``, ``STlms``, ``LMPscancfg``, ``LMPoutputRange``, ``LMDscandatacfg``,
-  ``ODoprh``, ``ODpwrc``, ``LFErec``, ``LIDoutputstate``, ``LIDinputstate``, and
-  ``LMDscandata`` (one scan, ``sRA``);
+  ``ODoprh``, ``ODpwrc``, ``LFErec``, ``LIDoutputstate``, ``LIDinputstate``, ``field000``
+  .. ``field029`` (empty fields, see `twin_fields`), and ``LMDscandata`` (one scan, ``sRA``);
 * writes (logged in): ``LMDscandatacfg``, ``LMPoutputRange``, ``EIHstCola`` (the answer
   goes out in the old dialect, then the device switches);
 * methods: ``SetAccessMode`` (level 3 ``F4724744``, level 2 ``B21ACE26``), and, logged
@@ -17,7 +17,9 @@ start-up (clearpath ``LMS1xx``, SICK ``sick_scan_xd``) with the replies a real d
 
 Refusals use the SOPAS codes a device sends: unknown variable 3, unknown method 2, unknown
 event F, write without login A, method without login 1, missing parameters 8 (what an
-LMS1xx answered to a short ``mLMPsetscancfg``, sick_scan_xd #39), other bad parameters 5.
+LMS1xx answered to a short ``mLMPsetscancfg``, sick_scan_xd #39), other bad parameters 5;
+first of all, 11 to CoLa-A parameters that are not printable ASCII (an LMS1xx V1.80.1 did
+so to binary ``mLMPsetscancfg`` values in a CoLa-A frame, sick_scan_xd #128).
 ``mLMPsetscancfg`` accepts 25 Hz at 0.25° or 0.5° and 50 Hz at 0.5° (36 kHz measurement
 rate at most); 50 Hz at 0.25° gets status 2 (resolution error), as on the device.
 One quirk is reproduced on purpose: ``LMPoutputRange`` always reports 0.5° whatever the
@@ -29,6 +31,7 @@ from __future__ import annotations
 
 import copy
 import datetime as dt
+import re
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from typing import Final
@@ -36,6 +39,7 @@ from typing import Final
 import numpy as np
 import numpy.typing as npt
 
+from drivers.lms111 import twin_fields
 from drivers.lms111.cola import Command, CommandType, Reply
 from drivers.lms111.commands import (
     AUTHORIZED_CLIENT,
@@ -72,7 +76,7 @@ from drivers.lms111.replies import (
     read_scan_sectors,
 )
 from drivers.lms111.scan import Channel, Scan, ScanTimestamp
-from drivers.lms111.values import FLEXSTR, U8, U16, U32, FieldType, Value
+from drivers.lms111.values import FLEXSTR, U16, U32, FieldType, Value
 
 WRAP_US: Final = 1 << 32
 SUPPORTED_MODES: Final = frozenset({(2500, 2500), (2500, 5000), (5000, 5000)})
@@ -95,6 +99,7 @@ WRITE_ACCESS_DENIED: Final = 0x0A
 UNKNOWN_COMMAND: Final = 0x0C
 UNKNOWN_EVENT: Final = 0x0F
 INVALID_COLA_A_CHARACTER: Final = 0x11
+_COLA_A_TEXT: Final = re.compile(rb"[\x20-\x7e]*")  # what CoLa-A parameters may hold
 
 # What one scan measures: ranges (m, 0 = no echo) and remission, given the time, the
 # device angles (rad) of the beams, and the configured angles.
@@ -297,6 +302,8 @@ class DeviceModel:
     # ---- requests -----------------------------------------------------------------
     def handle(self, request: Reply, peer: PeerState, now_s: float) -> Answer:
         """Answer one request; `ProtocolError` in its parameters becomes an ``sFA``."""
+        if request.dialect is Dialect.COLA_A and not _COLA_A_TEXT.fullmatch(request.params):
+            return Answer(error_code=INVALID_COLA_A_CHARACTER)
         if request.name in self.fail_commands:
             return Answer(error_code=self.fail_commands[request.name])
         try:
@@ -335,23 +342,17 @@ class DeviceModel:
             "ODoprh": lambda: _values(name, (U32, 12_345)),  # 1/10 h of operation
             "ODpwrc": lambda: _values(name, (U32, self.power_on_count)),
             "LFErec": lambda: _values(name, (U16, 0)),  # no field evaluation configured
-            "LIDoutputstate": lambda: self._output_state(name, now_s),
-            "LIDinputstate": lambda: _values(
-                name, (U16, 0), (U32, self.device_time_us(now_s)), (U8, 0), (U8, 0), (U16, 0)
-            ),
+            "LIDoutputstate": lambda: twin_fields.answer_output_state(self.device_time_us(now_s)),
+            "LIDinputstate": lambda: twin_fields.answer_input_state(self.device_time_us(now_s)),
         }
         if name == "LMDscandata":
             scan = self.latest_scan or self._build(now_s)
             return Answer(scan=self.telegram(scan))
+        if (field_number := twin_fields.field_index(name)) is not None:
+            return Answer(command=twin_fields.answer_field(field_number))
         if name not in variables:
             return Answer(error_code=UNKNOWN_VARIABLE)
         return Answer(command=variables[name]())
-
-    def _output_state(self, name: str, now_s: float) -> Command:
-        """Version, system time, 3 outputs (state, count), 8 external (not used), no time."""
-        fields: list[tuple[FieldType, Value]] = [(U16, 1), (U32, self.device_time_us(now_s))]
-        fields += [(U8, 0), (U32, 0)] * 3 + [(U8, 2), (U32, 0)] * 8 + [(U16, 0)]
-        return Command(CommandType.SRA, name, tuple(fields))
 
     def _write(self, request: Reply, peer: PeerState) -> Answer:
         name = request.name

@@ -6,6 +6,13 @@ EIHstCola`` switches the device; the answer still goes out in the old one), scan
 at the configured rate on an absolute schedule so counters and device time advance exactly
 one period per scan, rendered by `appliance.sim.render_scan` from a pose source.
 
+Requests it cannot read are answered as an LMS1xx does: a CoLa-A frame cut off by a new STX
+before its ETX is dropped without a word (a CoLa-B request, such as the ``02 02 02 02 ...``
+dialect probe SICK's ``sick_scan_xd`` starts with, looks exactly like that to a CoLa-A
+device, and an LMS100 stays silent to it: sick_scan_xd #419), counted in
+`TwinStats.truncated_requests`; any other unreadable telegram gets ``sFA 11`` (invalid
+CoLa-A character) in CoLa-A and ``sFA 5`` in CoLa-B.
+
 Faults are what users of LMS1xx drivers report from the field, so the client can be tested
 against each (`TwinFaults`, changeable while running, plus `drop_connections`,
 `stall_connections`, `report_not_ready`, and `stop`/`start` on the same port):
@@ -48,7 +55,7 @@ from appliance.sim.site import Site
 from drivers.geometry import Pose2D
 from drivers.lms111.cola import CommandType, Reply
 from drivers.lms111.connection import Lms111Connection
-from drivers.lms111.errors import ProtocolError
+from drivers.lms111.errors import ProtocolError, TruncatedTelegram
 from drivers.lms111.framing import NEED_DATA, Dialect
 from drivers.lms111.replies import ScanConfig
 from drivers.lms111.twin_device import (
@@ -92,6 +99,7 @@ class TwinStats:
     corrupted: int = 0
     garbage_bytes: int = 0
     writes: int = 0
+    truncated_requests: int = 0  # CoLa-A frames cut off by an STX: dropped, never answered
 
 
 @dataclass(eq=False)
@@ -292,6 +300,9 @@ class Lms111Twin:
         while True:
             try:
                 event = connection.next_event()
+            except TruncatedTelegram:  # e.g. a CoLa-B probe: a CoLa-A LMS1xx stays silent
+                self.stats.truncated_requests += 1
+                continue
             except ProtocolError:
                 bad = INVALID_COLA_A_CHARACTER if connection.dialect is Dialect.COLA_A else 0
                 await self._send(peer, connection.send_error(bad or INVALID_DATA))

@@ -9,6 +9,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from drivers.lms111 import NEED_DATA, ColaFramer, Dialect, ProtocolError, Telegram, frame
+from drivers.lms111.errors import TruncatedTelegram
 from tests.unit.lms111.golden import SCAN_COLA_A, SCAN_COLA_B, SCAN_COLA_B_PAYLOAD
 
 PAYLOAD_A = SCAN_COLA_A[1:-1]
@@ -99,7 +100,8 @@ def test_cola_a_truncated_telegram_then_good_one() -> None:
 def test_cola_a_truncated_then_good_one_in_one_read() -> None:
     framer = ColaFramer(Dialect.COLA_A)
     events = feed(framer, [b"\x02sSN LMDscan" + REPLY_A])
-    assert [type(e) for e in events] == [ProtocolError, Telegram]
+    assert [type(e) for e in events] == [TruncatedTelegram, Telegram]  # a ProtocolError
+    assert isinstance(events[0], ProtocolError)
     assert payloads(events) == [REPLY_A[1:-1]]
 
 

@@ -107,6 +107,7 @@ def test_every_start_up_request_of_the_official_drivers_is_answered(dialect: Dia
         "LFErec",
         "LIDoutputstate",
         "LIDinputstate",
+        *(f"field{index:03d}" for index in range(30)),  # sick_scan_xd's LMS1xx fields
     ):
         assert host.reply(Command(CommandType.SRN, name)).kind is CommandType.SRA, name
     assert host.reply(set_access_mode()).fields[:1] in (("1",), ())
