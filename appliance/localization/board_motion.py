@@ -1,0 +1,145 @@
+"""The control input of Qian et al.'s EKF: the vehicle's motion read off the front board.
+
+The flat-bed has no odometry worth the name (hydraulic motors, idling wheels), so the
+paper takes "the change of the parameters of the line segment [of the front board] in k
+and k+1" as the input u of the prediction (eq. 2). The board is fixed in the launcher
+frame, so if O_f moves by ``(t, Δψ)`` (expressed in its frame at k), the board's line
+``(r, α)`` seen from O_f changes by ``α_{k+1} = α_k - Δψ`` and ``r_{k+1} = r_k - n_k·t``;
+the component of ``t`` along the board comes from the board's ends, where an end is a
+true end (not hidden by something in front of it) in both frames.
+
+Why over a window and not frame to frame: u from two consecutive frames carries the
+newest line's noise whole into the prediction, and the same line then updates the
+filter, so the estimate jumps with every line (what the paper saw, section 4.3). The
+change across a window of about 0.2 s, divided by its duration, is a velocity with a
+fraction of that noise; the prediction integrates it over each measurement's time step.
+At the walking pace of a docking, the motion hardly changes within the window.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from appliance.localization.compound import wrap_angle_rad
+from appliance.localization.launcher_ekf import BodyMotion
+
+FloatArray = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class BoardEnd:
+    """A true end of the board, in the O_f frame, with its uncertainty along the line."""
+
+    x_m: float
+    y_m: float
+    sigma_m: float
+
+
+@dataclass(frozen=True)
+class BoardSighting:
+    """The front board as one scanner saw it at ``t_s``, in the O_f frame."""
+
+    t_s: float
+    r_m: float
+    alpha_rad: float
+    covariance: FloatArray  # of (r, α)
+    low_end: BoardEnd | None  # the end at the smaller coordinate along the line, if true
+    high_end: BoardEnd | None
+
+
+@dataclass(frozen=True)
+class BoardMotionParams:
+    window_s: float = 0.2
+    # A pair of sightings further apart than this says nothing about the present motion.
+    max_age_s: float = 0.5
+    # Along the board, with no true end in view, the motion is known only this well:
+    # the fastest the vehicle moves sideways (oblique pattern at docking pace).
+    unknown_along_sigma_mps: float = 0.3
+
+
+def _along(direction: FloatArray, end_a: BoardEnd, end_b: BoardEnd, dyaw: float) -> float:
+    c, s = math.cos(dyaw), math.sin(dyaw)
+    b_in_a = np.array([c * end_b.x_m - s * end_b.y_m, s * end_b.x_m + c * end_b.y_m])
+    return float(direction @ (np.array([end_a.x_m, end_a.y_m]) - b_in_a))
+
+
+def motion_between(
+    older: BoardSighting, newer: BoardSighting, params: BoardMotionParams
+) -> BodyMotion | None:
+    """O_f's velocity in its own frame from two sightings of the board, with covariance."""
+    dt_s = newer.t_s - older.t_s
+    if not dt_s > 0.0:
+        return None
+    dyaw = wrap_angle_rad(older.alpha_rad - newer.alpha_rad)
+    normal = np.array([math.cos(older.alpha_rad), math.sin(older.alpha_rad)])
+    direction = np.array([-normal[1], normal[0]])
+    along_normal = older.r_m - newer.r_m
+    var_normal = float(older.covariance[0, 0] + newer.covariance[0, 0])
+    var_yaw = float(older.covariance[1, 1] + newer.covariance[1, 1])
+    estimates: list[tuple[float, float]] = []
+    for a, b in ((older.low_end, newer.low_end), (older.high_end, newer.high_end)):
+        if a is not None and b is not None:
+            lever_m = math.hypot(b.x_m, b.y_m)
+            variance = a.sigma_m**2 + b.sigma_m**2 + lever_m**2 * var_yaw
+            estimates.append((_along(direction, a, b, dyaw), variance))
+    if estimates:
+        weights = np.array([1.0 / v for _, v in estimates])
+        along = float(np.dot(weights, [e for e, _ in estimates]) / weights.sum())
+        var_along = float(1.0 / weights.sum())
+    else:
+        along = 0.0
+        var_along = (params.unknown_along_sigma_mps * dt_s) ** 2
+    translation = normal * along_normal + direction * along
+    basis = np.column_stack([normal, direction])
+    cov_t = basis @ np.diag([var_normal, var_along]) @ basis.T
+    covariance = np.zeros((3, 3))
+    covariance[:2, :2] = cov_t
+    covariance[2, 2] = var_yaw
+    velocity = np.array([translation[0], translation[1], dyaw]) / dt_s
+    return BodyMotion(velocity, covariance / (dt_s * dt_s), correlation_time_s=dt_s)
+
+
+class BoardMotion:
+    """Keeps each scanner's recent sightings; ``motion`` is the fused velocity."""
+
+    def __init__(self, params: BoardMotionParams | None = None) -> None:
+        self.params = params or BoardMotionParams()
+        self._history: dict[str, deque[BoardSighting]] = {}
+
+    def reset(self) -> None:
+        self._history.clear()
+
+    def update(self, sensor: str, sighting: BoardSighting) -> None:
+        history = self._history.setdefault(sensor, deque())
+        if history and sighting.t_s <= history[-1].t_s:
+            return  # out of order or repeated: the window is kept in time order
+        history.append(sighting)
+        while len(history) > 2 and sighting.t_s - history[1].t_s >= self.params.window_s:
+            history.popleft()
+
+    def motion(self, now_s: float) -> BodyMotion | None:
+        """The inverse-covariance fusion of every scanner's window, or None when no
+        scanner has two recent sightings."""
+        estimates: list[BodyMotion] = []
+        for history in self._history.values():
+            if len(history) < 2 or now_s - history[-1].t_s > self.params.max_age_s:
+                continue
+            if history[-1].t_s - history[0].t_s > self.params.max_age_s:
+                continue
+            found = motion_between(history[0], history[-1], self.params)
+            if found is not None:
+                estimates.append(found)
+        if not estimates:
+            return None
+        if len(estimates) == 1:
+            return estimates[0]
+        information = sum(np.linalg.inv(e.covariance) for e in estimates)
+        covariance = np.linalg.inv(information)
+        weighted = sum(np.linalg.inv(e.covariance) @ e.velocity for e in estimates)
+        correlation_s = max(e.correlation_time_s for e in estimates)
+        return BodyMotion(covariance @ weighted, covariance, correlation_s)
