@@ -20,6 +20,7 @@ import can as can_lib
 
 from appliance.config import VehicleConfig
 from appliance.config.models import CanEndpoint, ColaDialect
+from appliance.sim.scanner_errors import draw_scanner_errors, noise_seed
 from appliance.sim.site_file import load_site
 from appliance.sim.twins.board_set import ActuatorTwins
 from appliance.sim.twins.lms111 import Lms111Twin
@@ -115,15 +116,18 @@ def build_simulator(
         ("left", config.devices.lms111_left, config.geometry.scanner_left_mount),
         ("right", config.devices.lms111_right, config.geometry.scanner_right_mount),
     )
+    realistic = sim.scanner_model == "realistic"
     for index, (side, endpoint, mount) in enumerate(sides):
+        # The twin scans from its true mount (``twin.true_mount``): the configured one
+        # composed with the drawn mount error, which the daemon does not know.
         twin = Lms111Twin(
             site,
             mount_pose(mount),
             platform_pose,
             name=f"sim.lms111_{side}",
             serial_number=0x0142_0001 + index,
-            range_bias_m=sim.scanner_range_bias_m * (1 if index else -1),
-            seed=index,
+            errors=draw_scanner_errors(sim.scanner_seed, index, realistic=realistic),
+            seed=noise_seed(sim.scanner_seed, index),
             host=endpoint.host,
             port=endpoint.port,
             scan_frequency_hz=endpoint.scan_frequency_hz,

@@ -11,7 +11,7 @@ of mistake that must not reach a nine-ton vehicle.
 from __future__ import annotations
 
 from enum import StrEnum
-from typing import Annotated, Self
+from typing import Annotated, Literal, Self
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
@@ -309,8 +309,13 @@ class Simulation(_Model):
     start_x_m: float = Field(-12.6, ge=-1000.0, le=1000.0)
     start_y_m: float = Field(0.4, ge=-1000.0, le=1000.0)
     start_yaw_deg: float = Field(3.0, ge=-180.0, le=180.0)
-    # Fixed range bias of each simulated scanner (a real unit's calibration offset).
-    scanner_range_bias_m: float = Field(0.01, ge=-0.1, le=0.1)
+    # What the simulated LMS111s get wrong (appliance/sim/scanner_errors.py): "realistic"
+    # gives each the data sheet's noise and systematic error, the beam footprint that mixes
+    # ranges at edges, the remission it needs at each range, and a mount a few millimetres
+    # and tenths of a degree off the configured one; "ideal" measures exact geometry.
+    scanner_model: Literal["realistic", "ideal"] = "realistic"
+    # Draws each scanner's systematic and mount errors (one vehicle per seed), and its noise.
+    scanner_seed: int = Field(1, ge=0, le=2**32 - 1)
 
 
 class VehicleConfig(_Model):

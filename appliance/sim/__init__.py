@@ -3,9 +3,11 @@
 ``site`` holds the geometry (segments, circles, walking people) as frozen data,
 ``builders`` turns a few parameters into a launcher (Qian et al.), a pallet area
 (Kinouchi et al.) or a yard, ``site_file`` loads a site from TOML, ``raycast`` finds
-the nearest hit of every beam at once, and ``scanner_model`` renders one LMS111 scan
-with the device's angle convention and noise. Everything is pure: time and randomness
-are arguments, so the twins, the tests and replays all get the same scans.
+the nearest hit of every beam at once, ``scanner_errors`` draws what one LMS111 gets
+wrong (noise, systematic error, beam footprint, remission limit, mount error) and
+``scanner_model`` renders one LMS111 scan with the device's angle convention and errors.
+Everything is pure: time and randomness are arguments, so the twins, the tests and
+replays all get the same scans.
 """
 
 from appliance.sim.builders import (
@@ -22,9 +24,18 @@ from appliance.sim.builders import (
     yard_site,
 )
 from appliance.sim.raycast import NO_HIT, RayHits, cast_rays, nearest_hits
+from appliance.sim.scanner_errors import (
+    LMS111_NOISE_SIGMA_M,
+    TYPICAL_LMS111,
+    BeamFootprint,
+    RemissionLimit,
+    ScannerErrors,
+    draw_scanner_errors,
+    ideal_scanner,
+    statistical_only,
+)
 from appliance.sim.scanner_model import (
     LMS111_MAX_RANGE_M,
-    LMS111_NOISE_SIGMA_M,
     LMS111_START_ANGLE_RAD,
     LMS111_STEP_RAD,
     LMS111_STOP_ANGLE_RAD,
@@ -43,12 +54,16 @@ __all__ = [
     "LMS111_STEP_RAD",
     "LMS111_STOP_ANGLE_RAD",
     "NO_HIT",
+    "TYPICAL_LMS111",
+    "BeamFootprint",
     "Circle",
     "LauncherSpec",
     "PalletAreaSpec",
     "Pose2D",
     "PostSpec",
     "RayHits",
+    "RemissionLimit",
+    "ScannerErrors",
     "Segment",
     "SegmentSpec",
     "ShapeArrays",
@@ -62,6 +77,8 @@ __all__ = [
     "builtin_site_names",
     "cast_rays",
     "clutter_site",
+    "draw_scanner_errors",
+    "ideal_scanner",
     "launcher_docking_target",
     "launcher_site",
     "load_site",
@@ -70,5 +87,6 @@ __all__ = [
     "parse_site",
     "render_scan",
     "scanner_pose",
+    "statistical_only",
     "yard_site",
 ]

@@ -3,8 +3,9 @@
 Two simulated LMS111 at 50 Hz render 100 scans of 1081 beams a second, next to the rest
 of the simulation in the same process, so a scan must cost well under a millisecond or
 two. The work is therefore one (beams x segments) and one (beams x circles) array
-computation with no Python loop over beams; shapes out of range are dropped first,
-because a 40 m yard wall is usually farther than the scanner's 20 m.
+computation with no Python loop over beams; in a site of many shapes, those out of range
+are dropped first, because a 40 m yard wall is usually farther than the scanner's 20 m
+(with a handful, casting against them all is cheaper than finding them).
 
 Conventions, chosen to match what the scanner reports rather than what geometry allows:
 
@@ -27,6 +28,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 NO_HIT = -1
+# Shapes are culled by distance only above this many of a kind: for fewer, casting against
+# the far ones costs less than the dozen array operations that find them.
+_CULL_ABOVE = 16
 _PARALLEL_EPS = 1e-9  # |d x e| below which a beam counts as parallel (1e-9 rad for 1 m)
 
 
@@ -96,14 +100,17 @@ def nearest_hits(
     directions[:, 0] = np.cos(angles)
     directions[:, 1] = np.sin(angles)
 
-    if segs.shape[0]:
+    if segs.shape[0] > _CULL_ABOVE:
         keep = np.flatnonzero(point_segment_distance_m(origin_x_m, origin_y_m, segs) <= max_range_m)
         if keep.size:
             _nearest_segment_hits(
                 origin_x_m, origin_y_m, directions, segs[keep], keep, ranges, index
             )
+    elif segs.shape[0]:
+        every = _SCRATCH.shape_numbers(segs.shape[0])
+        _nearest_segment_hits(origin_x_m, origin_y_m, directions, segs, every, ranges, index)
 
-    if circs.shape[0]:
+    if circs.shape[0] > _CULL_ABOVE:
         centre_distance = np.hypot(circs[:, 0] - origin_x_m, circs[:, 1] - origin_y_m)
         keep = np.flatnonzero(centre_distance - circs[:, 2] <= max_range_m)
         if keep.size:
@@ -111,6 +118,9 @@ def nearest_hits(
             _nearest_circle_hits(
                 origin_x_m, origin_y_m, directions, circs[keep], ids, ranges, index
             )
+    elif circs.shape[0]:
+        ids = _SCRATCH.shape_numbers(circs.shape[0]) + segs.shape[0]
+        _nearest_circle_hits(origin_x_m, origin_y_m, directions, circs, ids, ranges, index)
 
     missed = ~(ranges <= max_range_m) | (ranges <= 0.0)
     ranges[missed] = 0.0
@@ -131,6 +141,7 @@ class _Scratch(threading.local):
         self.floats: dict[str, NDArray[np.float64]] = {}
         self.flags: dict[str, NDArray[np.bool_]] = {}
         self.numbers: NDArray[np.intp] = np.arange(0)
+        self.shapes: dict[int, NDArray[np.intp]] = {}
 
     def float_array(self, key: str, rows: int, cols: int) -> NDArray[np.float64]:
         buffer = self.floats.get(key)
@@ -143,6 +154,14 @@ class _Scratch(threading.local):
         numbers = self.numbers
         if numbers.size != beams:
             numbers = self.numbers = np.arange(beams)
+            numbers.flags.writeable = False
+        return numbers
+
+    def shape_numbers(self, count: int) -> NDArray[np.intp]:
+        """``np.arange(count)`` for a small count, kept (read-only)."""
+        numbers = self.shapes.get(count)
+        if numbers is None:
+            numbers = self.shapes[count] = np.arange(count)
             numbers.flags.writeable = False
         return numbers
 

@@ -45,12 +45,8 @@ from typing import Any, Final
 import numpy as np
 import numpy.typing as npt
 
-from appliance.sim.scanner_model import (
-    LMS111_MAX_RANGE_M,
-    LMS111_NOISE_SIGMA_M,
-    RayCache,
-    render_scan,
-)
+from appliance.sim.scanner_errors import LMS111_NOISE_SIGMA_M, ScannerErrors, statistical_only
+from appliance.sim.scanner_model import LMS111_MAX_RANGE_M, RayCache, render_scan
 from appliance.sim.site import Site
 from drivers.geometry import Pose2D
 from drivers.lms111.cola import CommandType, Reply
@@ -123,7 +119,8 @@ class Lms111Twin:
         *,
         name: str = "lms111",
         serial_number: int = 0x0142_0001,
-        range_bias_m: float = 0.0,
+        errors: ScannerErrors | None = None,
+        range_bias_m: float | None = None,
         seed: int = 0,
         host: str = "127.0.0.1",
         port: int = 0,
@@ -131,7 +128,7 @@ class Lms111Twin:
         dialect: Dialect = Dialect.COLA_A,
         scan_frequency_hz: float = 50.0,
         angular_resolution_deg: float = 0.5,
-        noise_sigma_m: float = LMS111_NOISE_SIGMA_M,
+        noise_sigma_m: float | None = None,
         max_range_m: float = LMS111_MAX_RANGE_M,
         device_time_offset_us: int = 0,
         faults: TwinFaults | None = None,
@@ -141,8 +138,16 @@ class Lms111Twin:
         self.pose_source = pose_source
         self.name = name
         self.host = host
-        self.range_bias_m = range_bias_m
-        self.noise_sigma_m = noise_sigma_m
+        # ``errors``: what the scanner gets wrong (`draw_scanner_errors`; by default a
+        # typical LMS111 on its configured mount). ``range_bias_m``/``noise_sigma_m``
+        # instead: the older thin-ray model of a fixed offset and white noise only.
+        legacy = range_bias_m is not None or noise_sigma_m is not None
+        if errors is not None and legacy:
+            raise ValueError("give either errors or range_bias_m/noise_sigma_m, not both")
+        if errors is None:
+            sigma_m = LMS111_NOISE_SIGMA_M if noise_sigma_m is None else noise_sigma_m
+            errors = statistical_only(range_bias_m or 0.0, sigma_m) if legacy else ScannerErrors()
+        self.errors = errors
         self.max_range_m = max_range_m
         self.faults = faults or TwinFaults()
         self.stats = TwinStats()
@@ -375,6 +380,11 @@ class Lms111Twin:
         return data[: len(data) // 2]  # no ETX: the next STX exposes the truncation
 
     # ---- scans ----------------------------------------------------------------------
+    @property
+    def true_mount(self) -> Pose2D:
+        """Where the scanner really sits on the vehicle (``mount`` is the configured one)."""
+        return self.errors.true_mount(self.mount)
+
     def _render(
         self, t_s: float, angles_rad: npt.NDArray[np.float64]
     ) -> tuple[npt.NDArray[np.float64], ...]:
@@ -388,9 +398,8 @@ class Lms111Twin:
             start_angle_rad=float(angles_rad[0]),
             stop_angle_rad=float(angles_rad[-1]),
             step_rad=step,
+            errors=self.errors,
             max_range_m=self.max_range_m,
-            noise_sigma_m=self.noise_sigma_m,
-            range_bias_m=self.range_bias_m,
             cache=self._ray_cache,
         )
         count = len(angles_rad)  # float rounding must never change the beam count

@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from appliance.sim.raycast import NO_HIT, cast_rays, nearest_hits
+from appliance.sim.raycast import NO_HIT, cast_rays, nearer_of, nearest_hits
 
 
 def _segments(*rows: tuple[float, float, float, float]) -> np.ndarray:
@@ -82,6 +82,27 @@ def test_far_shapes_do_not_hide_near_ones_after_culling() -> None:
     hits = nearest_hits(0.0, 0.0, STRAIGHT, segments, None, 20.0)
     assert hits.ranges_m[0] == pytest.approx(4.0)
     assert hits.hit_index[0] == 1  # the index survives the culling of segment 0
+
+
+def test_a_site_of_many_shapes_is_culled_and_casts_the_same() -> None:
+    """Above a handful of shapes the far ones are dropped first: same hits, same indices."""
+    rng = np.random.default_rng(7)
+    segments = rng.uniform(-40.0, 40.0, size=(30, 4))
+    centres = rng.uniform(-40.0, 40.0, size=(24, 2))
+    circles = np.column_stack([centres, rng.uniform(0.1, 1.0, size=24)])
+    circles = circles[np.hypot(circles[:, 0], circles[:, 1]) > circles[:, 2] + 0.1]
+    angles = np.linspace(-math.pi, math.pi, 721)
+    culled = nearest_hits(0.0, 0.0, angles, segments, circles, 20.0)
+    one_by_one = nearest_hits(0.0, 0.0, angles, segments[:1], None, 20.0)
+    shapes = [(segments[i : i + 1], None, i) for i in range(1, len(segments))]
+    shapes += [(None, circles[i : i + 1], len(segments) + i) for i in range(len(circles))]
+    for segment, circle, offset in shapes:
+        one_by_one = nearer_of(
+            one_by_one, nearest_hits(0.0, 0.0, angles, segment, circle, 20.0), offset
+        )
+    assert np.count_nonzero(culled.ranges_m) > 100
+    np.testing.assert_allclose(culled.ranges_m, one_by_one.ranges_m, rtol=0.0, atol=1e-9)
+    np.testing.assert_array_equal(culled.hit_index, one_by_one.hit_index)
 
 
 def test_beam_parallel_to_a_segment_does_not_hit_it() -> None:

@@ -1,4 +1,8 @@
-"""The simulated LMS111: angle convention, the launcher seen from the approach, noise."""
+"""The simulated LMS111: angle convention, the launcher seen from the approach, noise.
+
+The error model itself (footprint, remission limit, drawn errors) is tested in
+``test_scanner_errors.py``; here the geometry is checked with the ideal scanner.
+"""
 
 from __future__ import annotations
 
@@ -14,12 +18,15 @@ from appliance.sim import (
     Segment,
     Site,
     beam_angles_rad,
+    ideal_scanner,
     load_site,
     render_scan,
     scanner_pose,
+    statistical_only,
 )
 
 SIGMA_M = LMS111_NOISE_SIGMA_M
+IDEAL = ideal_scanner()
 AHEAD = 540  # the 90° beam of a 1081-beam scan: straight out of the scanner's window
 
 
@@ -51,10 +58,10 @@ def test_device_angles_run_counter_clockwise_from_behind_right() -> None:
     right_rear = Site((Segment(-3.0, -4.0, -4.0, -3.0, 1.0, "right_rear"),))
     left = Site((Segment(-1.0, 5.0, 1.0, 5.0, 1.0, "left"),))
     rng = np.random.default_rng(0)
-    ranges, _ = render_scan(right_rear, 0.0, (0, 0, 0), (0, 0, 0), rng=rng, noise_sigma_m=0.0)
+    ranges, _ = render_scan(right_rear, 0.0, (0, 0, 0), (0, 0, 0), rng=rng, errors=IDEAL)
     assert ranges[0] == pytest.approx(3.5 * math.sqrt(2.0))
     assert not ranges[AHEAD:].any()
-    ranges, _ = render_scan(left, 0.0, (0, 0, 0), (0, 0, 0), rng=rng, noise_sigma_m=0.0)
+    ranges, _ = render_scan(left, 0.0, (0, 0, 0), (0, 0, 0), rng=rng, errors=IDEAL)
     assert ranges[900] == pytest.approx(5.0)  # (180 + 45) / 0.25
     assert not ranges[:AHEAD].any()
 
@@ -62,7 +69,7 @@ def test_device_angles_run_counter_clockwise_from_behind_right() -> None:
 def test_front_board_straight_ahead_at_ten_metres(launcher: Site) -> None:
     rng = np.random.default_rng(1)
     exact, remission = render_scan(
-        launcher, 0.0, (-10.0, 0.0, 0.0), (0.0, 0.0, 0.0), rng=rng, noise_sigma_m=0.0
+        launcher, 0.0, (-10.0, 0.0, 0.0), (0.0, 0.0, 0.0), rng=rng, errors=IDEAL
     )
     assert exact[AHEAD] == pytest.approx(10.0, abs=1e-9)
     assert remission[AHEAD] == pytest.approx(0.9)
@@ -86,7 +93,7 @@ def test_mount_places_and_turns_the_scanner(launcher: Site) -> None:
         (-14.0, 0.5, 0.0),
         (4.0, -0.5, 0.0),
         rng=np.random.default_rng(),
-        noise_sigma_m=0.0,
+        errors=IDEAL,
     )
     assert ranges[AHEAD] == pytest.approx(10.0)
 
@@ -110,12 +117,13 @@ def test_cylinders_at_their_bearings(launcher: Site) -> None:
 
 def test_noise_is_twelve_millimetres_around_the_bias(launcher: Site) -> None:
     rng = np.random.default_rng(3)
+    biased = statistical_only(range_offset_m=0.03)
     vehicle, mount = (-10.0, 0.0, 0.0), (0.0, 0.0, 0.0)
-    truth, _ = render_scan(launcher, 0.0, vehicle, mount, rng=rng, noise_sigma_m=0.0)
+    truth, _ = render_scan(launcher, 0.0, vehicle, mount, rng=rng, errors=IDEAL)
     board = slice(AHEAD - 30, AHEAD + 31)  # ±7.5°: all on the front board
     errors = np.array(
         [
-            render_scan(launcher, 0.0, vehicle, mount, rng=rng, range_bias_m=0.03)[0][board]
+            render_scan(launcher, 0.0, vehicle, mount, rng=rng, errors=biased)[0][board]
             - truth[board]
             for _ in range(200)
         ]
@@ -127,7 +135,12 @@ def test_noise_is_twelve_millimetres_around_the_bias(launcher: Site) -> None:
 def test_misses_stay_exactly_zero_and_ranges_are_clipped() -> None:
     at_limit = Site((Segment(19.99, -5.0, 19.99, 5.0, 0.5, "far"),))
     ranges, remission = render_scan(
-        at_limit, 0.0, (0, 0, 0), (0, 0, 0), rng=np.random.default_rng(4), noise_sigma_m=0.05
+        at_limit,
+        0.0,
+        (0, 0, 0),
+        (0, 0, 0),
+        rng=np.random.default_rng(4),
+        errors=statistical_only(noise_sigma_m=0.05),
     )
     assert ranges.max() <= 20.0
     assert (ranges[: AHEAD - 100] == 0.0).all()  # looking away: no echo, no noise
@@ -147,14 +160,14 @@ def test_the_walking_person_moves(launcher: Site) -> None:
     assert person.position_at(0.0) != person.position_at(2.0)
     rng = np.random.default_rng(6)
     pose, mount = (-10.0, 0.0, 0.0), (0.0, 0.0, 0.0)
-    before, _ = render_scan(launcher, 0.0, pose, mount, rng=rng, noise_sigma_m=0.0)
-    after, _ = render_scan(launcher, 2.0, pose, mount, rng=rng, noise_sigma_m=0.0)
+    before, _ = render_scan(launcher, 0.0, pose, mount, rng=rng, errors=IDEAL)
+    after, _ = render_scan(launcher, 2.0, pose, mount, rng=rng, errors=IDEAL)
     changed = np.flatnonzero(np.abs(before - after) > 1e-9)
     assert changed.size > 0
     for t_s in (0.0, 2.0):
         x_m, y_m = person.position_at(t_s)
         beam, distance = _beam_towards(x_m, y_m, Pose2D(*pose))
-        seen, _ = render_scan(launcher, t_s, pose, mount, rng=rng, noise_sigma_m=0.0)
+        seen, _ = render_scan(launcher, t_s, pose, mount, rng=rng, errors=IDEAL)
         assert seen[beam] == pytest.approx(distance - person.radius_m, abs=0.01)
     # The board straight ahead is not disturbed by the person beside the lane.
     assert before[AHEAD] == after[AHEAD]
