@@ -1,0 +1,214 @@
+"""When a cluster is the launcher's cylindrical landmark, and where its centre is.
+
+A circle fits almost anything short and curved: a post, a person's back, the inside of
+a wall corner, an arc cut short by something in front of it. The estimator gates on the
+predicted position too (a 0.15 m post *is* indistinguishable from the landmark), but
+what this module can refuse from the scan alone it refuses, each with its reason:
+
+- too few points to fit two unknowns with any redundancy;
+- not as wide as the cylinder (two-sided, so a 0.2 m post is refused too);
+- not isolated: the beams just outside the cluster must see nothing, or something
+  clearly farther than the cluster's ends. A nearer or equally near neighbour is a wall
+  the "arc" is the corner of, a person standing beside it, or an occluder that has
+  cut the arc short, and the centre fitted to that would be pulled off. The raw scan is
+  read here, not the regions of interest, so a region does not make a cylinder look
+  isolated;
+- residual rms above the noise (with the known radius);
+- the centre not behind the arc (a concave shape fits from the wrong side);
+- a free radius that disagrees with the known one, when there are points to tell.
+
+**The beam footprint.** At 10 m the LMS111's beam is 16 cm across, half the cylinder.
+A beam whose footprint only touches the cylinder still reports it, at its own central
+angle: the arc looks wider than the cylinder by about half a footprint, and its end
+points lie outside the circle. So the width check allows for that, and the fit drops
+the beams within a footprint half-angle of each end while enough points remain; in
+simulation that removes a bias of the centre of 7-8 mm at 10 m.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from appliance.perception.circles import fit_circle_free, fit_circle_known_radius
+from appliance.perception.gates import chi_square_quantile
+from appliance.perception.points import ScanPoints
+from appliance.perception.types import (
+    CircleFeature,
+    FitRejection,
+    RejectReason,
+    ScannerModel,
+)
+
+
+@dataclass(frozen=True)
+class CircleParams:
+    """Landmark radius and acceptance thresholds, defaults for Qian et al.'s launcher.
+
+    Four points: a 0.3 m pipe at 15 m with 0.25° beams. Width: the arc's width, less
+    ``footprint_widening`` of a footprint, must be the diameter to within one beam
+    spacing, ``footprint_widening_tolerance`` of a footprint (bright or dark surfaces
+    widen more or less) and ``width_tolerance_m``; that tells a 0.2 m post from the
+    0.3 m landmark out to 15 m, where neither the rms nor a free radius can.
+    ``rms_gate_z``: the residuals, in units of the data sheet's σ, must pass a χ² test
+    with ``n − 2`` degrees of freedom at this normal quantile (3.09: 99.9 %), i.e. an rms
+    of at most 1.9σ for 4 points and 1.4σ for 30; σ along a beam bounds the residual's
+    noise, so a true cylinder passes with room to spare.
+    ``facing_fraction``: the centre must lie this many radii behind the arc's mean range
+    (a full arc's is π/4 R). ``isolation_margin_m`` 0.2 m is many σ yet less than the
+    0.5 m the launcher's cylinders stand in front of its boards.
+    ``radius_check_points``: below that many points the free radius is too noisy to
+    judge. ``edge_trim_sigmas``: an end point farther off the circle than that is a
+    mixed echo, dropped and refitted.
+    """
+
+    radius_m: float = 0.15
+    min_points: int = 4
+    width_tolerance_m: float = 0.01
+    footprint_widening: float = 0.5
+    footprint_widening_tolerance: float = 0.25
+    rms_gate_z: float = 3.09
+    facing_fraction: float = 0.25
+    isolation_margin_m: float = 0.2
+    radius_check_points: int = 8
+    radius_tolerance_m: float = 0.02
+    trim_footprint_edges: bool = True
+    edge_trim_sigmas: float = 4.0
+    max_iterations: int = 50
+
+    def __post_init__(self) -> None:
+        if not self.radius_m > 0.0:
+            raise ValueError(f"radius_m must be > 0, got {self.radius_m}")
+        if self.min_points < 3:
+            raise ValueError(f"min_points must be >= 3, got {self.min_points}")
+        if self.max_iterations < 1:
+            raise ValueError(f"max_iterations must be >= 1, got {self.max_iterations}")
+
+
+def _isolated(points: ScanPoints, start: int, stop: int, margin_m: float) -> bool:
+    """The beams just outside [start, stop) see nothing, or see it clearly farther."""
+    for beyond, edge in ((start - 1, start), (stop, stop - 1)):
+        if not 0 <= beyond < points.count:
+            return False  # the field of view's edge: what is beside the arc is unknown
+        if points.valid[beyond] and points.ranges_m[beyond] <= points.ranges_m[edge] + margin_m:
+            return False
+    return True
+
+
+def _beam_step_rad(points: ScanPoints, start: int) -> float:
+    """The angle between two neighbouring beams (from their unit directions)."""
+    a, b = points.directions[start], points.directions[start + 1]
+    return abs(math.atan2(float(a[0] * b[1] - a[1] * b[0]), float(a @ b)))
+
+
+def _width_problem(
+    points: ScanPoints, start: int, stop: int, params: CircleParams, scanner: ScannerModel
+) -> FitRejection | None:
+    """Whether the cluster subtends the angle the cylinder would, from where it is.
+
+    Compared as angles, not lengths: a cylinder of radius R whose centre is d away shows
+    the scanner an arc between its two tangents, ``2 asin(R / d)`` wide, and only the
+    beams' directions are certain (a mixed echo at an end is off in range, never in
+    angle). A chord at the arc's mean range would be short of the diameter by up to a
+    third at 1 m, where the tangent points lie well behind the nearest point. The
+    footprint widens the arc by about ``footprint_widening`` of its own angular size; a
+    scanner without one (the ideal model) is inside the tolerance.
+    """
+    ranges = points.ranges_m[start:stop]
+    centre_m = float(np.min(ranges)) + params.radius_m
+    first, last = points.directions[start], points.directions[stop - 1]
+    span = abs(math.atan2(float(first[0] * last[1] - first[1] * last[0]), float(first @ last)))
+    expected = 2.0 * math.asin(min(1.0, params.radius_m / centre_m))
+    footprint_rad = (
+        scanner.footprint_exit_m + scanner.footprint_divergence_rad * centre_m
+    ) / centre_m
+    widened = expected + params.footprint_widening * footprint_rad
+    allowed = (
+        _beam_step_rad(points, start)
+        + params.footprint_widening_tolerance * footprint_rad
+        + params.width_tolerance_m / centre_m
+    )
+    across_m = 2.0 * centre_m * math.sin(0.5 * span)
+    if span > widened + allowed:
+        return FitRejection(RejectReason.TOO_WIDE, f"{across_m:.3f} m across")
+    if span < widened - allowed:
+        return FitRejection(RejectReason.TOO_NARROW, f"{across_m:.3f} m across")
+    return None
+
+
+def fit_cylinder(
+    points: ScanPoints,
+    segment: tuple[int, int],
+    params: CircleParams,
+    scanner: ScannerModel,
+) -> CircleFeature | FitRejection:
+    """The cylinder landmark a segment shows, or the reason it is not one."""
+    start, stop = segment
+    if stop - start < max(params.min_points, 2):
+        return FitRejection(RejectReason.TOO_FEW_POINTS, f"{stop - start} points")
+    problem = _width_problem(points, start, stop, params, scanner)
+    if problem is not None:
+        return problem
+    if not _isolated(points, start, stop, params.isolation_margin_m):
+        return FitRejection(RejectReason.NOT_ISOLATED)
+    first, last = start, stop
+    if params.trim_footprint_edges:
+        range_m = float(np.mean(points.ranges_m[start:stop]))
+        reach = scanner.footprint_half_angle_rad(range_m) / max(_beam_step_rad(points, start), 1e-9)
+        trim = min(math.ceil(reach), (stop - start - params.min_points) // 2)
+        first, last = start + trim, stop - trim
+    previous: tuple[float, float] | None = None
+    while True:
+        fit = fit_circle_known_radius(
+            points.xy_m[first:last],
+            params.radius_m,
+            points.origin_xy_m,
+            scanner,
+            params.max_iterations,
+            start=previous,
+        )
+        if isinstance(fit, FitRejection):
+            return fit
+        ends = np.abs(fit.residuals_m[[0, -1]])
+        if (
+            last - first <= params.min_points
+            or ends.max() <= params.edge_trim_sigmas * scanner.sigma_m
+        ):
+            break
+        first, last = (first + 1, last) if ends[0] >= ends[1] else (first, last - 1)
+        previous = (fit.cx_m, fit.cy_m)
+    allowed_rms = scanner.sigma_m * math.sqrt(
+        chi_square_quantile(fit.n_points - 2, params.rms_gate_z) / fit.n_points
+    )
+    if fit.rms_m > allowed_rms:
+        return FitRejection(RejectReason.RMS_TOO_LARGE, f"rms {fit.rms_m * 1e3:.1f} mm")
+    used = points.xy_m[first:last]
+    ox, oy = points.origin_xy_m
+    centre_range = math.hypot(fit.cx_m - ox, fit.cy_m - oy)
+    arc_range = float(np.mean(np.hypot(used[:, 0] - ox, used[:, 1] - oy)))
+    if centre_range - arc_range < params.facing_fraction * params.radius_m:
+        return FitRejection(RejectReason.NOT_FACING)
+    if last - first >= params.radius_check_points:
+        free = fit_circle_free(
+            used,
+            points.origin_xy_m,
+            scanner,
+            params.max_iterations,
+            start=(fit.cx_m, fit.cy_m, params.radius_m),
+        )
+        if not isinstance(free, FitRejection):
+            allowed = params.radius_tolerance_m + 3.0 * free.radius_sigma_m
+            if abs(free.radius_m - params.radius_m) > allowed:
+                return FitRejection(RejectReason.RADIUS_MISMATCH, f"radius {free.radius_m:.3f} m")
+    return CircleFeature(
+        cx_m=fit.cx_m,
+        cy_m=fit.cy_m,
+        radius_m=params.radius_m,
+        covariance=fit.covariance,
+        n_points=fit.n_points,
+        rms_m=fit.rms_m,
+        first_index=first,
+        last_index=last - 1,
+    )

@@ -1,0 +1,196 @@
+"""The weighted total-least-squares line and its covariance, for boards and walls.
+
+**Fit.** Weighted total least squares in Hessian normal form. A point's range error lies
+along its beam, so its offset from the line has variance ``σ_r² (n·u_i)² + σ_floor²``
+(``n`` the line normal, ``u_i`` the beam direction): points seen obliquely are better
+along the normal than points seen head-on. The weights depend on ``n``, so the fit is
+iterated to its fixed point (Pfister et al. 2003 do the same). With weights ``w_i``
+fixed, the line passes through the weighted centroid ``p̄`` and its normal is the minor
+axis of the weighted scatter matrix, in closed form ``α = ½ atan2(−2 Sxy, Syy − Sxx)``.
+
+**Covariance, derived.** The estimate solves ``Σ w_i e_i ∂e_i/∂θ = 0`` for
+``e_i = x_i cos α + y_i sin α − r``, ``θ = (r, α)``, ``∂e_i/∂θ = (−1, d_i)`` with
+``d_i = t·p_i`` the coordinate along the line (``t = (−sin α, cos α)``). To first
+order (terms in ``e_i`` have zero mean) and with ``w_i = 1/var e_i`` the sandwich
+collapses to ``C = (Σ w_i g_i g_iᵀ)⁻¹``. Inverting the 2x2 with ``W = Σ w_i``,
+``d̄ = Σ w_i d_i / W`` and ``S = Σ w_i (d_i − d̄)²``::
+
+    var α = 1/S,   cov(r, α) = d̄/S,   var r = 1/W + d̄²/S
+
+which reads: the offset at the centroid is known to ``1/W``, the angle to ``1/S``, and
+``r`` inherits the angle error through the lever arm ``d̄`` from the foot of the normal
+to the centroid (``dr/dα = t·p̄ = d̄``).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import numpy as np
+
+from appliance.perception.types import FitRejection, FloatArray, RejectReason, ScannerModel
+
+_IRLS_TOLERANCE = 1e-12
+_RESOLUTION = 1e-10  # a spread below this fraction of the coordinates is rounding
+
+
+@dataclass(frozen=True, eq=False)
+class LineFit:
+    """A fitted line before it becomes a feature: Hessian form, covariance, residuals."""
+
+    r_m: float
+    alpha_rad: float
+    covariance: FloatArray  # 2x2 over (r_m, alpha_rad)
+    rms_m: float
+    max_residual_m: float
+    n_points: int
+    chi_square: float  # Σ (residual / its σ)²
+
+
+def wrap_angle(angle_rad: float) -> float:
+    """The angle in (−π, π]."""
+    wrapped = math.atan2(math.sin(angle_rad), math.cos(angle_rad))
+    return math.pi if wrapped <= -math.pi else wrapped
+
+
+def moment_columns(q: FloatArray) -> FloatArray:
+    """Columns whose weighted sums are every moment a line fit needs: 1, x, y, x², y², xy."""
+    columns = np.empty((q.shape[0], 6))
+    columns[:, 0] = 1.0
+    columns[:, 1:3] = q
+    columns[:, 3:5] = q * q
+    columns[:, 5] = q[:, 0] * q[:, 1]
+    return columns
+
+
+class RoughLine(NamedTuple):
+    """A line from weighted moment sums, with what its covariance and tests need."""
+
+    r_m: float
+    alpha_rad: float
+    spread: float  # Σ w (d - d̄)²: the weighted spread along the line
+    along_m: float  # d̄ = t·p̄: the weighted centroid's coordinate along the line
+    total: float  # Σ w
+    chi_square: float  # Σ w e²: the weighted spread across it, the residuals' sum
+
+
+def line_from_sums(sums: FloatArray, shift: FloatArray) -> RoughLine | None:
+    """The weighted TLS line from moment sums of points moved by ``-shift``; None when
+    the points have no direction."""
+    total, sx, sy, sxx, syy, sxy = sums.tolist()
+    if not total > 0.0:
+        return None
+    mx, my = sx / total, sy / total
+    cxx, cyy, cxy = sxx - total * mx * mx, syy - total * my * my, sxy - total * mx * my
+    px, py = mx + float(shift[0]), my + float(shift[1])
+    resolution = _RESOLUTION * max(abs(px), abs(py))  # spreads below this are rounding
+    if not (cxx + cyy > total * resolution * resolution and math.isfinite(cxx + cyy + cxy)):
+        return None
+    alpha = 0.5 * math.atan2(-2.0 * cxy, cyy - cxx)
+    c, s = math.cos(alpha), math.sin(alpha)
+    r = px * c + py * s
+    if r < 0.0:
+        r, alpha, c, s = -r, alpha + math.pi, -c, -s
+    spread = cxx * s * s - 2.0 * cxy * s * c + cyy * c * c
+    across = cxx * c * c + 2.0 * cxy * s * c + cyy * s * s
+    return RoughLine(r, wrap_angle(alpha), spread, -s * px + c * py, total, across)
+
+
+def tls_line(xy_m: FloatArray, weights: FloatArray | None = None) -> tuple[float, float] | None:
+    """(r, α) of the (weighted) total-least-squares line, or None if the points have no
+    direction (fewer than two, coincident, or so far out that rounding ate the spread)."""
+    if xy_m.shape[0] < 2:
+        return None
+    with np.errstate(all="ignore"):
+        shift = xy_m.mean(axis=0)
+        q = xy_m - shift
+        w = np.ones(xy_m.shape[0]) if weights is None else weights
+        line = line_from_sums(w @ moment_columns(q), shift)
+    return None if line is None else (line.r_m, line.alpha_rad)
+
+
+def _weights(
+    directions: FloatArray | None, alpha: float, scanner: ScannerModel, n: int
+) -> FloatArray:
+    if directions is None:
+        return np.full(n, 1.0 / (scanner.sigma_m**2 + scanner.floor_sigma_m**2))
+    cos_incidence = directions @ np.array([math.cos(alpha), math.sin(alpha)])
+    weights: FloatArray = 1.0 / scanner.normal_variance(cos_incidence)
+    return weights
+
+
+def fit_line(
+    xy_m: FloatArray,
+    directions: FloatArray | None,
+    scanner: ScannerModel,
+    max_iterations: int = 20,
+    alpha_start_rad: float | None = None,
+) -> LineFit | FitRejection:
+    """Weighted TLS line through the points, iterated to its fixed point.
+
+    ``directions`` (N, 2) are the unit beam directions (the range error's direction);
+    None means isotropic noise of ``σ_r`` (plus the floor), i.e. the plain TLS line.
+    ``alpha_start_rad`` (a rough line's α) saves the unweighted first pass. Never raises
+    and never returns nan: anything unfit is a `FitRejection`.
+    """
+    n = int(xy_m.shape[0])
+    if n < 2:
+        return FitRejection(RejectReason.TOO_FEW_POINTS, f"{n} point(s)")
+    with np.errstate(all="ignore"):
+        shift = xy_m.sum(axis=0) / n
+        if not math.isfinite(float(shift.sum())):  # a nan or inf, or a sum overflowed
+            return FitRejection(RejectReason.NON_FINITE)
+        q = xy_m - shift
+        moments = moment_columns(q)
+        alpha = alpha_start_rad
+        if alpha is None and directions is not None:
+            unweighted = line_from_sums(moments.sum(axis=0), shift)
+            alpha = None if unweighted is None else unweighted.alpha_rad
+        weights = _weights(directions, 0.0 if alpha is None else alpha, scanner, n)
+        previous: RoughLine | None = None
+        line: RoughLine | None = None
+        for _ in range(max(max_iterations, 1) if directions is not None else 1):
+            line = line_from_sums(weights @ moments, shift)
+            if line is None:
+                return FitRejection(RejectReason.DEGENERATE, "no direction in the points")
+            if directions is None:
+                break
+            if previous is not None:
+                change = max(
+                    abs(line.r_m - previous.r_m),
+                    abs(wrap_angle(line.alpha_rad - previous.alpha_rad)),
+                )
+                if change <= _IRLS_TOLERANCE * (1.0 + line.r_m):
+                    break  # the weights this line was fitted with are its own, to rounding
+            previous = line
+            weights = _weights(directions, line.alpha_rad, scanner, n)
+        if line is None:
+            return FitRejection(RejectReason.DEGENERATE, "no direction in the points")
+        return _finish_line_fit(q, shift, line, weights)
+
+
+def _finish_line_fit(
+    q: FloatArray, shift: FloatArray, line: RoughLine, weights: FloatArray
+) -> LineFit | FitRejection:
+    """Covariance (derived in the module docstring) and residuals of a fitted line."""
+    if not (line.spread > 0.0 and math.isfinite(line.spread)):
+        return FitRejection(RejectReason.DEGENERATE, "no extent along the line")
+    c, s = math.cos(line.alpha_rad), math.sin(line.alpha_rad)
+    residuals = q @ np.array([c, s]) - (line.r_m - float(shift[0]) * c - float(shift[1]) * s)
+    var_alpha = 1.0 / line.spread
+    lever = line.along_m
+    covariance = np.array(
+        [
+            [1.0 / line.total + lever * lever * var_alpha, lever * var_alpha],
+            [lever * var_alpha, var_alpha],
+        ]
+    )
+    squares = residuals * residuals
+    rms = math.sqrt(float(squares.sum()) / q.shape[0])
+    worst = math.sqrt(float(squares.max()))
+    chi_square = float(weights @ squares)
+    if not (np.isfinite(covariance).all() and math.isfinite(rms + chi_square + line.r_m)):
+        return FitRejection(RejectReason.NON_FINITE, "the fit overflowed")
+    return LineFit(line.r_m, line.alpha_rad, covariance, rms, worst, int(q.shape[0]), chi_square)

@@ -1,0 +1,91 @@
+"""A scan's beams as points in the output frame, converted once for every later stage.
+
+The input is the sensor frame the rest of the code base uses (x straight out of the
+scanner's window, angles counter-clockwise; ``drivers.lms111.mounted`` subtracts the
+device's 90° once), plus ``frame``: the scanner's pose in the frame the features are
+wanted in. With the mount pose that is the vehicle frame, with the identity pose the
+sensor frame itself.
+
+Every beam keeps its index, echo or not, so that segments, features and the occlusion
+and isolation tests (which look at the beam *next to* a cluster) can all speak in beam
+indices. A beam without an echo (range 0, or anything not finite) is marked invalid and
+its point is put at the sensor origin: a finite placeholder nobody reads, rather than a
+NaN that would poison a sum.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+from appliance.perception.types import BoolArray, FloatArray
+from drivers.geometry import Pose2D
+
+IDENTITY = Pose2D(0.0, 0.0, 0.0)
+
+
+@dataclass(frozen=True, eq=False)
+class ScanPoints:
+    """One scan in the output frame; every array has one row per beam.
+
+    ``ranges_m`` are the measured ranges minus the calibrated offset (0 where invalid);
+    ``directions`` are the unit beam directions in the output frame, which the fits
+    need because the range error of a point lies along its beam.
+    """
+
+    xy_m: FloatArray  # (N, 2)
+    ranges_m: FloatArray  # (N,)
+    directions: FloatArray  # (N, 2)
+    valid: BoolArray  # (N,)
+    origin_xy_m: tuple[float, float]
+
+    def __post_init__(self) -> None:
+        for array in (self.xy_m, self.ranges_m, self.directions, self.valid):
+            array.flags.writeable = False
+
+    @property
+    def count(self) -> int:
+        return int(self.ranges_m.shape[0])
+
+    def valid_xy_m(self) -> FloatArray:
+        """(M, 2) points of the beams with an echo, in beam order."""
+        points: FloatArray = self.xy_m[self.valid]
+        return points
+
+
+def scan_points(
+    ranges_m: npt.ArrayLike,
+    angles_rad: npt.ArrayLike,
+    frame: Pose2D = IDENTITY,
+    *,
+    range_offset_m: float = 0.0,
+) -> ScanPoints:
+    """Polar beams in the sensor frame to Cartesian points in the output frame.
+
+    ``range_offset_m`` is a scanner calibration: it is subtracted from every range with
+    an echo before conversion (a range that drops to 0 or below becomes no echo).
+    Raises ValueError only for arrays of mismatched or non-1-D shape: a caller's bug,
+    not a property of the scene.
+    """
+    ranges = np.asarray(ranges_m, dtype=np.float64)
+    angles = np.asarray(angles_rad, dtype=np.float64)
+    if ranges.ndim != 1 or angles.shape != ranges.shape:
+        raise ValueError(
+            f"ranges_m and angles_rad must be 1-D of one length, got {ranges.shape}"
+            f" and {angles.shape}"
+        )
+    with np.errstate(invalid="ignore"):
+        valid = np.isfinite(ranges) & np.isfinite(angles) & (ranges > 0.0)
+        corrected = np.where(valid, ranges - range_offset_m, 0.0)
+        valid &= corrected > 0.0  # also drops a non-finite offset's nan
+    corrected = np.where(valid, corrected, 0.0)
+    world_angles = np.where(valid, angles, 0.0) + frame.yaw_rad
+    directions = np.empty((ranges.shape[0], 2), dtype=np.float64)
+    directions[:, 0] = np.cos(world_angles)
+    directions[:, 1] = np.sin(world_angles)
+    xy = corrected[:, np.newaxis] * directions
+    xy[:, 0] += frame.x_m
+    xy[:, 1] += frame.y_m
+    return ScanPoints(xy, corrected, directions, valid, (float(frame.x_m), float(frame.y_m)))
