@@ -1,0 +1,270 @@
+"""Qian et al.'s docking (4.2): from about 10 m out, into the launcher's troughs within 1 cm.
+
+The paper's steps, as motion patterns of the flat-bed's PC104:
+(a) rear-wheel steering to bring the heading to zero (it barely moves the front end);
+(b) oblique (crab) movement until the front end's centre is on the launcher's axis;
+(c) closing in straight, with oblique or rear steering when needed;
+(d) stop when the longitudinal gap reaches zero.
+
+And what the paper says fell short, done better here: it saw the estimate jump and the
+patterns switch back and forth, and had to widen its thresholds. So every threshold has
+an entry and a smaller exit value (hysteresis), every pattern a minimum dwell time, the
+thresholds narrow with the gap (loose 10 m out, tight at the troughs), and switches are
+counted. Before the teeth reach the troughs there is a gate: the vehicle goes on only
+aligned, otherwise it backs off and approaches again, so it never touches the launcher
+misaligned. And speed falls with the gap and with the estimate's uncertainty.
+
+Pure: ``update(centre_pose, covariance, now_s)`` returns a ``DockingCommand`` (pattern,
+signed speed, crab or rear angle): a wish, which the mode machine and the safety layer
+may refuse, and which the PC104's own pattern controllers carry out.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from enum import StrEnum
+
+import numpy as np
+from numpy.typing import NDArray
+
+from drivers.geometry import Pose2D
+from drivers.pc104.messages import MotionPattern
+
+FloatArray = NDArray[np.float64]
+
+
+class DockingPhase(StrEnum):
+    HEADING = "heading"  # (a)
+    LATERAL = "lateral"  # (b)
+    APPROACH = "approach"  # (c)
+    BACK_OFF = "back_off"  # misaligned at the gate: reverse, then (c) again
+    DOCKED = "docked"  # (d)
+
+
+@dataclass(frozen=True)
+class DockingParams:
+    # Geometry, in the vehicle frame (origin at the geometric centre O_m).
+    front_end_forward_m: float = 6.0
+    teeth_lateral_m: float = 1.0  # the two teeth at ±this on the front end
+    tooth_insertion_m: float = 0.15  # how deep a tooth goes into its trough
+    trough_clearance_m: float = 0.01  # a trough is 2 cm wider than its tooth: ±1 cm
+    standoff_m: float = 0.0  # the gap is zero when the front end is this far from the board
+    # Speed: proportional to the gap, between these limits.
+    max_speed_mps: float = 0.3
+    min_speed_mps: float = 0.02
+    speed_per_gap_per_s: float = 0.08
+    # Thresholds: far (at ``far_gap_m`` and beyond) and near (at the gate), interpolated
+    # in between; each is entered at the value and left at ``exit_fraction`` of it.
+    far_gap_m: float = 8.0
+    heading_far_rad: float = math.radians(1.0)
+    heading_near_rad: float = math.radians(0.15)
+    lateral_far_m: float = 0.08
+    lateral_near_m: float = 0.005
+    exit_fraction: float = 0.4
+    min_dwell_s: float = 2.0
+    # Gains: yaw rate per radian of heading error, lateral speed per metre of offset.
+    heading_gain_per_s: float = 0.4
+    lateral_gain_per_s: float = 0.4
+    max_rear_steer_rad: float = math.radians(20.0)
+    max_crab_rad: float = math.radians(15.0)
+    wheelbase_m: float = 6.0
+    # The gate, before the teeth reach the troughs: go on only aligned this well, with
+    # an estimate this certain; otherwise back off by ``back_off_m`` and try again.
+    gate_gap_m: float = 0.3
+    gate_lateral_m: float = 0.007
+    gate_heading_rad: float = math.radians(0.2)
+    gate_sigma_m: float = 0.006
+    # ... for this long: one jumpy estimate is not a reason to back off.
+    gate_persist_s: float = 0.5
+    back_off_m: float = 1.0
+    max_attempts: int = 3
+
+
+@dataclass(frozen=True)
+class DockingCommand:
+    phase: DockingPhase
+    pattern: MotionPattern
+    speed_mps: float  # signed: negative backs off
+    front_steer_rad: float = 0.0  # the crab angle in OBLIQUE
+    rear_steer_rad: float = 0.0  # REAR_STEER: physical angle, positive = left
+    gap_m: float = math.nan
+    lateral_m: float = math.nan  # the front end's centre off the axis (+ left)
+    heading_rad: float = math.nan
+    teeth_lateral_m: tuple[float, float] = (math.nan, math.nan)
+    refused: str = ""  # non-empty: the docking cannot go on (given up after attempts)
+
+
+def docking_errors(
+    centre: Pose2D, params: DockingParams
+) -> tuple[float, float, float, tuple[float, float]]:
+    """Gap, front-end lateral offset, heading, and each tooth's lateral offset from its
+    trough's centre line, all in the launcher frame."""
+    front = centre.compose(Pose2D(params.front_end_forward_m, 0.0, 0.0))
+    gap = -params.standoff_m - front.x_m
+    teeth = tuple(
+        centre.apply(params.front_end_forward_m, side * params.teeth_lateral_m)[1]
+        - side * params.teeth_lateral_m
+        for side in (1.0, -1.0)
+    )
+    return gap, front.y_m, math.remainder(centre.yaw_rad, math.tau), (teeth[0], teeth[1])
+
+
+def teeth_inside(centre: Pose2D, params: DockingParams) -> bool:
+    """Both teeth inside their troughs over their whole length: the teeth stick out
+    ``tooth_insertion_m`` ahead of the front end, so tip and root are checked."""
+    for depth in (params.tooth_insertion_m, 0.0):
+        shifted = centre.compose(Pose2D(depth, 0.0, 0.0))
+        _, _, _, teeth = docking_errors(shifted, params)
+        if max(abs(t) for t in teeth) > params.trough_clearance_m:
+            return False
+    return True
+
+
+def lateral_sigma_m(centre: Pose2D, covariance: FloatArray | None, forward_m: float) -> float:
+    """σ of the front end's lateral position: what decides whether the teeth go in
+    (the longitudinal σ only moves the stop by as much)."""
+    if covariance is None:
+        return math.inf
+    jac = np.array([0.0, 1.0, forward_m * math.cos(centre.yaw_rad)])
+    return math.sqrt(max(float(jac @ np.asarray(covariance) @ jac), 0.0))
+
+
+class DockingController:
+    def __init__(self, params: DockingParams | None = None) -> None:
+        self.params = params or DockingParams()
+        self.reset()
+
+    def reset(self) -> None:
+        self.phase = DockingPhase.HEADING
+        self.pattern = MotionPattern.STOP
+        self._since_s: float | None = None
+        self.switches = 0
+        self.attempts = 1
+        self._back_off_until_gap_m = 0.0
+        self._misaligned_since_s: float | None = None
+
+    def _threshold(self, gap_m: float, far: float, near: float) -> float:
+        p = self.params
+        span = max(p.far_gap_m - p.gate_gap_m, 1e-6)
+        w = min(1.0, max(0.0, (gap_m - p.gate_gap_m) / span))
+        return near + w * (far - near)
+
+    def _switch(self, pattern: MotionPattern, now_s: float) -> MotionPattern:
+        """The pattern to use: a change only after the current one's dwell time."""
+        if pattern is self.pattern:
+            return pattern
+        if self._since_s is not None and now_s - self._since_s < self.params.min_dwell_s:
+            return self.pattern
+        if self.pattern is not MotionPattern.STOP:
+            self.switches += 1
+        self.pattern = pattern
+        self._since_s = now_s
+        return pattern
+
+    def update(self, centre: Pose2D, covariance: FloatArray | None, now_s: float) -> DockingCommand:
+        p = self.params
+        gap, lateral, heading, teeth = docking_errors(centre, p)
+        sigma_m = lateral_sigma_m(centre, covariance, p.front_end_forward_m)
+
+        def command(
+            pattern: MotionPattern, speed: float, front: float = 0.0, rear: float = 0.0
+        ) -> DockingCommand:
+            return DockingCommand(
+                self.phase, pattern, speed, front, rear, gap, lateral, heading, teeth
+            )
+
+        if self.phase is DockingPhase.DOCKED or gap <= 0.0:
+            self.phase = DockingPhase.DOCKED
+            self.pattern = MotionPattern.STOP
+            return command(MotionPattern.STOP, 0.0)
+
+        if self.phase is DockingPhase.BACK_OFF:
+            if gap < self._back_off_until_gap_m:
+                self._switch(MotionPattern.STRAIGHT, now_s)
+                return command(
+                    self.pattern,
+                    -p.max_speed_mps / 2 if self.pattern is MotionPattern.STRAIGHT else 0.0,
+                )
+            self.phase = DockingPhase.APPROACH
+
+        speed = min(p.max_speed_mps, max(p.min_speed_mps, p.speed_per_gap_per_s * gap))
+        heading_enter = self._threshold(gap, p.heading_far_rad, p.heading_near_rad)
+        lateral_enter = self._threshold(gap, p.lateral_far_m, p.lateral_near_m)
+
+        # The gate: the teeth are about to meet the troughs.
+        if gap <= p.gate_gap_m:
+            aligned = (
+                max(abs(t) for t in teeth) <= p.gate_lateral_m
+                and abs(heading) <= p.gate_heading_rad
+                and sigma_m <= p.gate_sigma_m
+            )
+            if aligned:
+                self._misaligned_since_s = None
+            elif self._misaligned_since_s is None:
+                self._misaligned_since_s = now_s
+            persistent = (
+                self._misaligned_since_s is not None
+                and now_s - self._misaligned_since_s >= p.gate_persist_s
+            )
+            if persistent and gap > p.tooth_insertion_m:  # before the tips reach the troughs
+                if self.attempts >= p.max_attempts:
+                    self._switch(MotionPattern.STOP, now_s)
+                    refused = command(MotionPattern.STOP, 0.0)
+                    return DockingCommand(
+                        **{
+                            **refused.__dict__,
+                            "refused": "not aligned at the gate after every attempt",
+                        }
+                    )
+                self.attempts += 1
+                self._misaligned_since_s = None
+                self.phase = DockingPhase.BACK_OFF
+                self._back_off_until_gap_m = gap + p.back_off_m
+                self._switch(MotionPattern.STRAIGHT, now_s)
+                return command(self.pattern, 0.0)
+            speed = min(speed, p.min_speed_mps * 2)
+
+        heading_bad = abs(heading) > heading_enter
+        heading_fine = abs(heading) <= heading_enter * p.exit_fraction
+        lateral_bad = abs(lateral) > lateral_enter
+        lateral_fine = abs(lateral) <= lateral_enter * p.exit_fraction
+
+        if self.phase is DockingPhase.HEADING and heading_fine:
+            self.phase = DockingPhase.LATERAL
+        if self.phase is DockingPhase.LATERAL and lateral_fine:
+            self.phase = DockingPhase.APPROACH
+
+        wanted: MotionPattern
+        if self.phase is DockingPhase.HEADING:
+            wanted = MotionPattern.REAR_STEER
+        elif self.phase is DockingPhase.LATERAL:
+            wanted = MotionPattern.OBLIQUE
+        else:  # (c): keep the current correction until it is fine, start one when bad
+            current = self.pattern
+            correcting = (current is MotionPattern.REAR_STEER and not heading_fine) or (
+                current is MotionPattern.OBLIQUE and not lateral_fine
+            )
+            if correcting:
+                wanted = current
+            elif heading_bad:
+                wanted = MotionPattern.REAR_STEER
+            elif lateral_bad:
+                wanted = MotionPattern.OBLIQUE
+            else:
+                wanted = MotionPattern.STRAIGHT
+        pattern = self._switch(wanted, now_s)
+
+        if pattern is MotionPattern.REAR_STEER:
+            # yaw rate = -v tan(δ_r) / L for a physical rear angle δ_r (left positive).
+            yaw_rate = -p.heading_gain_per_s * heading
+            rear = -math.atan(yaw_rate * p.wheelbase_m / max(speed, 1e-3))
+            rear = max(-p.max_rear_steer_rad, min(p.max_rear_steer_rad, rear))
+            return command(pattern, speed, rear=rear)
+        if pattern is MotionPattern.OBLIQUE:
+            wanted_lateral_mps = -p.lateral_gain_per_s * lateral
+            ratio = max(-0.99, min(0.99, wanted_lateral_mps / max(speed, 1e-3)))
+            crab = math.asin(ratio) - heading
+            crab = max(-p.max_crab_rad, min(p.max_crab_rad, crab))
+            return command(pattern, speed, front=crab)
+        return command(pattern, speed)

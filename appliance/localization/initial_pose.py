@@ -1,0 +1,161 @@
+"""The first pose, with no prior (Qian et al. 3.2.3 a): from the front board in view.
+
+The front board is the one line of its width (3 m by default) whose two ends are true
+ends, facing the vehicle: its (r, α) fixes x and ψ (in the O_f frame the board is
+``(r, α) = (-x, -ψ)``), and its midpoint is the launcher's origin, which fixes y. Each
+scanner gives its own answer; with both in view they must agree, and the answer is their
+information-weighted mean. Refusal is the safe default, with a reason a person can act
+on: a board partly hidden (a person walking past, the default site has one) has an
+occluded end and is not taken; two candidates are ambiguous; a board too far or too
+close is out of range.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from appliance.localization.compound import wrap_angle_rad
+from appliance.localization.launcher_map import LauncherMap
+from appliance.perception.types import LineFeature, ScanFeatures
+from drivers.geometry import Pose2D
+
+FloatArray = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class InitialPoseParams:
+    # The board's visible length may differ from its width by this much (ends are cut by
+    # the beam spacing and the footprint), plus a fraction of the width.
+    length_tolerance_m: float = 0.12
+    length_tolerance_fraction: float = 0.04
+    min_range_m: float = 0.5
+    max_range_m: float = 15.0  # the "automatic navigation zone" is about 10 m out
+    max_heading_rad: float = math.radians(30.0)
+    # Both scanners' answers must agree this well.
+    agree_position_m: float = 0.10
+    agree_heading_rad: float = math.radians(1.0)
+    # The uncertainty of a board end along the board: beam spacing at that range and
+    # the footprint, taken as this fraction of the range plus a constant.
+    end_sigma_per_m: float = 0.004
+    end_sigma_floor_m: float = 0.01
+    # The scanners' systematic errors, unless calibrated: ±30 mm range, a few tenths of
+    # a degree of mount yaw. They enter as a floor on the covariance.
+    systematic_range_sigma_m: float = 0.02
+    systematic_yaw_sigma_rad: float = math.radians(0.3)
+
+
+@dataclass(frozen=True)
+class InitialPose:
+    pose: Pose2D  # O_f in the launcher frame
+    covariance: FloatArray
+    sensors: tuple[str, ...]
+
+
+@dataclass(frozen=True)
+class InitialPoseRefusal:
+    reason: str
+
+
+def _candidates(
+    features: ScanFeatures, launcher: LauncherMap, params: InitialPoseParams
+) -> tuple[list[LineFeature], str]:
+    width = launcher.front_board_width_m
+    tolerance = params.length_tolerance_m + params.length_tolerance_fraction * width
+    whole, partial, far = [], 0, 0
+    for line in features.lines:
+        if abs(wrap_angle_rad(line.alpha_rad)) > params.max_heading_rad:
+            continue  # not facing the vehicle: a side board, a wall beside
+        if not params.min_range_m <= line.r_m <= params.max_range_m:
+            far += 1 if abs(line.length_m - width) <= tolerance else 0
+            continue
+        if abs(line.length_m - width) <= tolerance:
+            if line.start_occluded or line.end_occluded:
+                partial += 1
+            else:
+                whole.append(line)
+        elif line.length_m < width and (line.start_occluded or line.end_occluded):
+            partial += 1
+    if whole:
+        return whole, ""
+    if far:
+        return [], "launcher out of range"
+    if partial:
+        return [], "front board partly hidden"
+    return [], "launcher not in view"
+
+
+def _pose_from_board(
+    line: LineFeature, sensor: Pose2D, params: InitialPoseParams
+) -> tuple[FloatArray, FloatArray]:
+    """O_f's pose and covariance from a whole board (its ends' midpoint is the origin)."""
+    yaw = wrap_angle_rad(-line.alpha_rad)
+    mid = 0.5 * (np.array(line.start_xy_m) + np.array(line.end_xy_m))
+    c, s = math.cos(yaw), math.sin(yaw)
+    rot = np.array([[c, -s], [s, c]])
+    d_rot = np.array([[-s, -c], [c, -s]])
+    xy = -rot @ mid
+    # Covariance of the midpoint in O_f: across the board from (r, α), along from the ends.
+    normal = np.array([math.cos(line.alpha_rad), math.sin(line.alpha_rad)])
+    direction = np.array([-normal[1], normal[0]])
+    ranges = [math.dist(p, (sensor.x_m, sensor.y_m)) for p in (line.start_xy_m, line.end_xy_m)]
+    end_var = [(params.end_sigma_per_m * r + params.end_sigma_floor_m) ** 2 for r in ranges]
+    var_along = 0.25 * sum(end_var)
+    var_r = float(line.covariance[0, 0]) + params.systematic_range_sigma_m**2
+    var_alpha = float(line.covariance[1, 1]) + params.systematic_yaw_sigma_rad**2
+    cov_mid = var_r * np.outer(normal, normal) + var_along * np.outer(direction, direction)
+    j_yaw = -d_rot @ mid  # ∂xy/∂ψ, and ψ = -α
+    covariance = np.zeros((3, 3))
+    covariance[:2, :2] = rot @ cov_mid @ rot.T + var_alpha * np.outer(j_yaw, j_yaw)
+    covariance[:2, 2] = covariance[2, :2] = var_alpha * j_yaw
+    covariance[2, 2] = var_alpha
+    return np.array([xy[0], xy[1], yaw]), covariance
+
+
+def initial_pose(
+    features: Mapping[str, ScanFeatures],
+    sensors: Mapping[str, Pose2D],
+    launcher: LauncherMap,
+    params: InitialPoseParams | None = None,
+) -> InitialPose | InitialPoseRefusal:
+    """The pose of O_f from each scanner's features (in the O_f frame) and its pose there."""
+    params = params or InitialPoseParams()
+    answers: dict[str, tuple[FloatArray, FloatArray]] = {}
+    reasons: dict[str, str] = {}
+    for name, scan in features.items():
+        found, reason = _candidates(scan, launcher, params)
+        if len(found) > 1:
+            reasons[name] = "ambiguous: more than one board-sized line"
+        elif found:
+            answers[name] = _pose_from_board(found[0], sensors[name], params)
+        else:
+            reasons[name] = reason
+    if not answers:
+        ordered = sorted(set(reasons.values()))
+        return InitialPoseRefusal("; ".join(ordered) or "no scan")
+    if any(r.startswith("ambiguous") for r in reasons.values()):
+        return InitialPoseRefusal("ambiguous: more than one board-sized line")
+    poses = list(answers.values())
+    for other in poses[1:]:
+        gap = other[0] - poses[0][0]
+        if (
+            math.hypot(gap[0], gap[1]) > params.agree_position_m
+            or abs(wrap_angle_rad(float(gap[2]))) > params.agree_heading_rad
+        ):
+            return InitialPoseRefusal("ambiguous: the scanners disagree on the board")
+    information = sum(np.linalg.inv(cov) for _, cov in poses)
+    covariance = np.linalg.inv(information)
+    reference = poses[0][0]
+    weighted = np.zeros(3)
+    for state, cov in poses:
+        offset = state - reference
+        offset[2] = wrap_angle_rad(float(offset[2]))
+        weighted += np.linalg.inv(cov) @ offset
+    mean = reference + covariance @ weighted
+    covariance = 0.5 * (covariance + covariance.T)
+    pose = Pose2D(float(mean[0]), float(mean[1]), wrap_angle_rad(float(mean[2])))
+    return InitialPose(pose, covariance, tuple(sorted(answers)))

@@ -1,0 +1,333 @@
+"""Scans in, the vehicle's pose on the launcher out: features, initial pose, EKF, status.
+
+One small class the daemon, the docking simulation and replay all step the same way:
+``update(sensor, ranges_m, angles_rad, t_s, now_s)`` per scan, ``estimate(now_s)`` per
+control cycle. With no pose yet it looks for the whole front board in both scanners
+(``initial_pose``); from then on it searches only around the predicted landmarks
+(regions of interest, 3.2.3 b), predicts with the board's motion, and updates with every
+cylinder each scanner sees (eq. 5, with that scanner's own offset) and with the board.
+
+The estimate says how good it is, as SICK's own localization reports it: a status
+(``ok``, ``degraded``, ``lost``) and a quality from 0 to 100, for the safety layer to stop
+automatic motion on. A scan older than ``scan_max_age_s`` is never used.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import Counter
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from enum import StrEnum
+
+import numpy as np
+from numpy.typing import NDArray
+
+from appliance.localization.board_motion import (
+    BoardEnd,
+    BoardMotion,
+    BoardMotionParams,
+    BoardSighting,
+)
+from appliance.localization.compound import compound, compound_jacobians, wrap_angle_rad
+from appliance.localization.initial_pose import (
+    InitialPose,
+    InitialPoseParams,
+    initial_pose,
+)
+from appliance.localization.launcher_ekf import BodyMotion, EkfParams, LauncherEkf
+from appliance.localization.launcher_map import LauncherMap
+from appliance.perception.features import DiscRoi, FeatureParams, LineRoi, extract_features
+from appliance.perception.types import CircleFeature, LineFeature, ScanFeatures
+from drivers.geometry import Pose2D
+
+FloatArray = NDArray[np.float64]
+
+
+class LocalizationStatus(StrEnum):
+    OK = "ok"
+    DEGRADED = "degraded"  # usable with care: automatic motion may not start or go on
+    LOST = "lost"  # no pose: automatic motion stops
+
+
+@dataclass(frozen=True)
+class ScannerSetup:
+    """One scanner as the localizer uses it: its mount in the vehicle frame (calibrated
+    where a calibration exists), its range offset, and what is left of its systematic
+    error (the data sheet's ±30 mm and the mount's tenths of a degree uncalibrated, a few
+    millimetres and hundredths after ``dbw calibrate scanners``)."""
+
+    mount: Pose2D
+    range_offset_m: float = 0.0
+    systematic_range_sigma_m: float = 0.02
+    systematic_yaw_sigma_rad: float = math.radians(0.3)
+
+
+@dataclass(frozen=True)
+class LocalizerParams:
+    launcher: LauncherMap = field(default_factory=LauncherMap)
+    features: FeatureParams = field(default_factory=FeatureParams)
+    ekf: EkfParams = field(default_factory=EkfParams)
+    board_motion: BoardMotionParams = field(default_factory=BoardMotionParams)
+    initial: InitialPoseParams = field(default_factory=InitialPoseParams)
+    scan_max_age_s: float = 0.12
+    # Two scanners' scans are taken together for the initial pose within this time.
+    initial_pair_s: float = 0.1
+    cylinder_roi_m: float = 0.6
+    board_roi_m: float = 0.4
+    board_match_heading_rad: float = math.radians(3.0)
+    board_match_range_m: float = 0.25
+    # Status: lost with no accepted measurement for this long, or beyond this σ.
+    lost_after_s: float = 0.5
+    lost_sigma_m: float = 0.15
+    degraded_sigma_m: float = 0.02
+    degraded_heading_sigma_rad: float = math.radians(0.5)
+    # With no cylinder for this long, y rests on the board's ends alone.
+    cylinder_degraded_after_s: float = 1.0
+
+
+@dataclass(frozen=True)
+class LocalizationEstimate:
+    status: LocalizationStatus
+    reason: str
+    quality: int  # 0..100
+    t_s: float | None  # the time of the last measurement the estimate includes
+    pose: Pose2D | None  # O_f in the launcher frame
+    covariance: FloatArray | None
+    centre_pose: Pose2D | None  # the vehicle's geometric centre O_m, for the controller
+    centre_covariance: FloatArray | None
+    nis: Mapping[str, float]
+    accepted: Mapping[str, int]
+    rejected: Mapping[str, int]
+
+
+def _polar(circle: CircleFeature, sensor: Pose2D) -> tuple[FloatArray, FloatArray]:
+    """A circle's centre as range and bearing from the scanner, with covariance."""
+    dx, dy = circle.cx_m - sensor.x_m, circle.cy_m - sensor.y_m
+    q = dx * dx + dy * dy
+    r = math.sqrt(q)
+    z = np.array([r, wrap_angle_rad(math.atan2(dy, dx) - sensor.yaw_rad)])
+    jac = np.array([[dx / r, dy / r], [-dy / q, dx / q]])
+    return z, jac @ circle.covariance @ jac.T
+
+
+class LauncherLocalizer:
+    def __init__(
+        self, scanners: Mapping[str, ScannerSetup], params: LocalizerParams | None = None
+    ) -> None:
+        if not scanners:
+            raise ValueError("the localizer needs at least one scanner")
+        self.params = params or LocalizerParams()
+        self.scanners = dict(scanners)
+        # O_f: midway between the scanners (Fig. 7); each scanner's pose in the O_f frame.
+        xs = [s.mount.x_m for s in scanners.values()]
+        ys = [s.mount.y_m for s in scanners.values()]
+        self.origin_in_vehicle = Pose2D(sum(xs) / len(xs), sum(ys) / len(ys), 0.0)
+        self.sensors = {
+            name: Pose2D(
+                s.mount.x_m - self.origin_in_vehicle.x_m,
+                s.mount.y_m - self.origin_in_vehicle.y_m,
+                s.mount.yaw_rad,
+            )
+            for name, s in scanners.items()
+        }
+        self.ekf = LauncherEkf(self.params.ekf)
+        self.motion = BoardMotion(self.params.board_motion)
+        self.reset()
+
+    def reset(self) -> None:
+        self.ekf.reset()
+        self.motion.reset()
+        self.stale_scans = 0
+        self.feature_rejections: Counter[str] = Counter()
+        self._pending: dict[str, tuple[float, ScanFeatures]] = {}
+        self._last_accept_s: float | None = None
+        self._last_cylinder_s: float | None = None
+        self.init_reason = "no scan yet"
+        self.last_features: dict[str, ScanFeatures] = {}
+
+    def update(
+        self,
+        sensor: str,
+        ranges_m: FloatArray,
+        angles_rad: FloatArray,
+        t_s: float,
+        now_s: float,
+    ) -> None:
+        """One scan, ``angles_rad`` in the scanner's frame (x out of its window)."""
+        setup = self.scanners.get(sensor)
+        if setup is None:
+            raise KeyError(f"unknown scanner {sensor!r}")
+        if now_s - t_s > self.params.scan_max_age_s:
+            self.stale_scans += 1
+            return
+        if not self.ekf.initialized:
+            self._initialize(sensor, ranges_m, angles_rad, t_s)
+            return
+        self._track(sensor, setup, ranges_m, angles_rad, t_s)
+
+    # ---- without a pose --------------------------------------------------------------
+    def _initialize(
+        self, sensor: str, ranges_m: FloatArray, angles_rad: FloatArray, t_s: float
+    ) -> None:
+        p = self.params
+        setup = self.scanners[sensor]
+        features = extract_features(
+            ranges_m, angles_rad, self.sensors[sensor], p.features,
+            range_offset_m=setup.range_offset_m,
+        )  # fmt: skip
+        self.last_features[sensor] = features
+        self._pending[sensor] = (t_s, features)
+        fresh = {n: f for n, (t, f) in self._pending.items() if t_s - t <= p.initial_pair_s}
+        if len(fresh) < len(self.scanners):
+            self.init_reason = "waiting for every scanner"
+            return
+        found = initial_pose(fresh, self.sensors, p.launcher, self._initial_params())
+        if not isinstance(found, InitialPose):
+            self.init_reason = found.reason
+            return
+        self.ekf.reset(found.pose, found.covariance, t_s)
+        self._last_accept_s = t_s
+        self.init_reason = ""
+
+    def _initial_params(self) -> InitialPoseParams:
+        worst_range = max(s.systematic_range_sigma_m for s in self.scanners.values())
+        worst_yaw = max(s.systematic_yaw_sigma_rad for s in self.scanners.values())
+        base = self.params.initial
+        return InitialPoseParams(
+            **{
+                **base.__dict__,
+                "systematic_range_sigma_m": worst_range,
+                "systematic_yaw_sigma_rad": worst_yaw,
+            }
+        )
+
+    # ---- with a pose -----------------------------------------------------------------
+    def _rois(self, state: FloatArray) -> list[DiscRoi | LineRoi]:
+        p = self.params
+        inverse_pose = Pose2D(*state)
+        c, s = math.cos(inverse_pose.yaw_rad), math.sin(inverse_pose.yaw_rad)
+
+        def to_of(x_m: float, y_m: float) -> tuple[float, float]:
+            dx, dy = x_m - state[0], y_m - state[1]
+            return c * dx + s * dy, -s * dx + c * dy
+
+        half = p.launcher.half_width_m
+        (x0, y0), (x1, y1) = to_of(0.0, -half), to_of(0.0, half)
+        rois: list[DiscRoi | LineRoi] = [LineRoi(x0, y0, x1, y1, p.board_roi_m)]
+        for landmark in p.launcher.cylinders:
+            cx, cy = to_of(landmark.x_m, landmark.y_m)
+            rois.append(DiscRoi(cx, cy, p.cylinder_roi_m))
+        return rois
+
+    def _track(
+        self,
+        sensor: str,
+        setup: ScannerSetup,
+        ranges_m: FloatArray,
+        angles_rad: FloatArray,
+        t_s: float,
+    ) -> None:
+        p = self.params
+        motion = self.motion.motion(t_s) or BodyMotion.still()
+        if not self.ekf.predict(t_s, motion):
+            return
+        pose_in_of = self.sensors[sensor]
+        features = extract_features(
+            ranges_m, angles_rad, pose_in_of, p.features, self._rois(self.ekf.state),
+            range_offset_m=setup.range_offset_m,
+        )  # fmt: skip
+        self.last_features[sensor] = features
+        self.feature_rejections.update(features.rejections)
+        range_var = setup.systematic_range_sigma_m**2
+        yaw_var = setup.systematic_yaw_sigma_rad**2
+        for circle in features.circles:
+            z, cov = _polar(circle, pose_in_of)
+            r_cov = cov + np.diag([range_var, yaw_var])
+            best = min(
+                p.launcher.cylinders,
+                key=lambda lm: self.ekf.innovation(z, r_cov, (lm.x_m, lm.y_m), pose_in_of),
+            )
+            outcome = self.ekf.update_cylinder(z, r_cov, (best.x_m, best.y_m), pose_in_of)
+            if outcome.accepted:
+                self._last_accept_s = self._last_cylinder_s = t_s
+        board = self._board_line(features.lines)
+        if board is not None:
+            z = np.array([board.r_m, board.alpha_rad])
+            r_cov = np.asarray(board.covariance) + np.diag([range_var, yaw_var])
+            if self.ekf.update_board(z, r_cov).accepted:
+                self._last_accept_s = t_s
+            self.motion.update(sensor, self._sighting(board, pose_in_of, t_s))
+
+    def _board_line(self, lines: tuple[LineFeature, ...]) -> LineFeature | None:
+        """The line that is the front board, as predicted; the longest if it is split."""
+        p = self.params
+        state = self.ekf.state
+        expected_r, expected_alpha = -float(state[0]), wrap_angle_rad(-float(state[2]))
+        matches = [
+            line
+            for line in lines
+            if abs(wrap_angle_rad(line.alpha_rad - expected_alpha)) <= p.board_match_heading_rad
+            and abs(line.r_m - expected_r) <= p.board_match_range_m
+        ]
+        return max(matches, key=lambda line: line.n_points, default=None)
+
+    def _sighting(self, line: LineFeature, sensor: Pose2D, t_s: float) -> BoardSighting:
+        initial = self.params.initial
+        tangent = np.array([-math.sin(line.alpha_rad), math.cos(line.alpha_rad)])
+        ends = []
+        sides = ((line.start_xy_m, line.start_occluded), (line.end_xy_m, line.end_occluded))
+        for xy, occluded in sides:
+            distance = math.dist(xy, (sensor.x_m, sensor.y_m))
+            sigma = initial.end_sigma_per_m * distance + initial.end_sigma_floor_m
+            ends.append((float(tangent @ np.array(xy)), None if occluded else BoardEnd(*xy, sigma)))
+        ends.sort(key=lambda pair: pair[0])
+        return BoardSighting(
+            t_s, line.r_m, line.alpha_rad, np.asarray(line.covariance), ends[0][1], ends[1][1]
+        )
+
+    # ---- what the rest of the vehicle reads ------------------------------------------
+    def estimate(self, now_s: float) -> LocalizationEstimate:
+        p = self.params
+        counts = (dict(self.ekf.accepted), dict(self.ekf.rejected))
+        if not self.ekf.initialized or self._last_accept_s is None:
+            return LocalizationEstimate(
+                LocalizationStatus.LOST, self.init_reason or "no pose", 0, None, None, None,
+                None, None, {}, *counts,
+            )  # fmt: skip
+        state, cov = self.ekf.state, self.ekf.covariance
+        sigma_m = math.sqrt(max(float(np.max(np.linalg.eigvalsh(cov[:2, :2]))), 0.0))
+        sigma_yaw = math.sqrt(max(float(cov[2, 2]), 0.0))
+        silent_s = now_s - self._last_accept_s
+        if silent_s > p.lost_after_s:
+            status, reason = LocalizationStatus.LOST, f"no landmark accepted for {silent_s:.2f} s"
+        elif sigma_m > p.lost_sigma_m:
+            status, reason = LocalizationStatus.LOST, f"position sigma {sigma_m * 100:.1f} cm"
+        elif sigma_m > p.degraded_sigma_m or sigma_yaw > p.degraded_heading_sigma_rad:
+            status = LocalizationStatus.DEGRADED
+            reason = f"sigma {sigma_m * 1000:.0f} mm, {math.degrees(sigma_yaw):.2f} deg"
+        elif self._last_cylinder_s is None or (
+            now_s - self._last_cylinder_s > p.cylinder_degraded_after_s
+        ):
+            status, reason = LocalizationStatus.DEGRADED, "no cylinder in view"
+        else:
+            status, reason = LocalizationStatus.OK, ""
+        quality = 0
+        if status is not LocalizationStatus.LOST:
+            quality = round(100.0 * max(0.0, min(1.0, 1.0 - sigma_m / p.lost_sigma_m)))
+        back = np.array([-self.origin_in_vehicle.x_m, -self.origin_in_vehicle.y_m, 0.0])
+        centre = compound(state, back)
+        j_pose, _ = compound_jacobians(state, back)
+        centre_cov = j_pose @ cov @ j_pose.T
+        return LocalizationEstimate(
+            status,
+            reason,
+            quality,
+            self.ekf.t_s,
+            Pose2D(*map(float, state)),
+            cov,
+            Pose2D(*map(float, centre)),
+            centre_cov,
+            dict(self.ekf.last_nis),
+            *counts,
+        )
