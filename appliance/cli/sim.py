@@ -17,6 +17,7 @@ from pathlib import Path
 import click
 import structlog
 
+from appliance.cli.sim_dock import dock
 from appliance.config import ConfigError, VehicleConfig, load_config
 from appliance.config.atomic import write_text_atomic
 from appliance.config.calibration_file import write_calibration
@@ -165,7 +166,7 @@ def _stop_on_stdin_eof(loop: asyncio.AbstractEventLoop, stop: asyncio.Event) -> 
     loop.add_reader(fd, on_readable)
 
 
-@click.command()
+@click.group(invoke_without_command=True)
 @click.option("--config", "config_name", metavar="FILE|PROFILE", default="sim", show_default=True)
 @click.option(
     "--can-channel",
@@ -202,7 +203,9 @@ def _stop_on_stdin_eof(loop: asyncio.AbstractEventLoop, stop: asyncio.Event) -> 
     "PC104, observe what the twins were told): see appliance/sim/bench.py. Put it in a "
     "directory only you can write to.",
 )
+@click.pass_context
 def sim(
+    ctx: click.Context,
     config_name: str,
     can_channel: str | None,
     can_slcan: str | None,
@@ -213,7 +216,12 @@ def sim(
     exit_on_stdin_eof: bool,
     bench_socket: Path | None,
 ) -> None:
-    """Run the simulated vehicle and print its endpoints (and a config for `dbw run`)."""
+    """Run the simulated vehicle and print its endpoints (and a config for `dbw run`).
+
+    With a subcommand (`dbw sim dock`), run that instead.
+    """
+    if ctx.invoked_subcommand is not None:
+        return
     try:
         config = load_config(config_name)
     except ConfigError as exc:
@@ -243,3 +251,6 @@ def sim(
             )
         )
     )
+
+
+sim.add_command(dock)

@@ -55,7 +55,9 @@ class DockingParams:
     min_speed_mps: float = 0.02
     speed_per_gap_per_s: float = 0.08
     # Thresholds: far (at ``far_gap_m`` and beyond) and near (at the gate), interpolated
-    # in between; each is entered at the value and left at ``exit_fraction`` of it.
+    # in between. A correction is entered at that value and left only at
+    # ``exit_fraction`` of the NEAR value: corrected once, all the way, rather than to a
+    # fraction of a threshold that then narrows under it (a staircase of switches).
     far_gap_m: float = 8.0
     heading_far_rad: float = math.radians(1.0)
     heading_near_rad: float = math.radians(0.15)
@@ -63,6 +65,9 @@ class DockingParams:
     lateral_near_m: float = 0.005
     exit_fraction: float = 0.4
     min_dwell_s: float = 2.0
+    # A correction starts only when its error has stood for this long: one jumpy
+    # estimate near the launcher must not cost two switches.
+    enter_persist_s: float = 0.5
     # Gains: yaw rate per radian of heading error, lateral speed per metre of offset.
     heading_gain_per_s: float = 0.4
     lateral_gain_per_s: float = 0.4
@@ -143,12 +148,21 @@ class DockingController:
         self.attempts = 1
         self._back_off_until_gap_m = 0.0
         self._misaligned_since_s: float | None = None
+        self._since_bad: dict[str, float] = {}
 
     def _threshold(self, gap_m: float, far: float, near: float) -> float:
         p = self.params
         span = max(p.far_gap_m - p.gate_gap_m, 1e-6)
         w = min(1.0, max(0.0, (gap_m - p.gate_gap_m) / span))
         return near + w * (far - near)
+
+    def _persists(self, what: str, condition: bool, now_s: float) -> bool:
+        """``condition`` has held without a break for ``enter_persist_s``."""
+        if not condition:
+            self._since_bad.pop(what, None)
+            return False
+        since = self._since_bad.setdefault(what, now_s)
+        return now_s - since >= self.params.enter_persist_s
 
     def _switch(self, pattern: MotionPattern, now_s: float) -> MotionPattern:
         """The pattern to use: a change only after the current one's dwell time."""
@@ -225,10 +239,10 @@ class DockingController:
                 return command(self.pattern, 0.0)
             speed = min(speed, p.min_speed_mps * 2)
 
-        heading_bad = abs(heading) > heading_enter
-        heading_fine = abs(heading) <= heading_enter * p.exit_fraction
-        lateral_bad = abs(lateral) > lateral_enter
-        lateral_fine = abs(lateral) <= lateral_enter * p.exit_fraction
+        heading_bad = self._persists("heading", abs(heading) > heading_enter, now_s)
+        heading_fine = abs(heading) <= p.heading_near_rad * p.exit_fraction
+        lateral_bad = self._persists("lateral", abs(lateral) > lateral_enter, now_s)
+        lateral_fine = abs(lateral) <= p.lateral_near_m * p.exit_fraction
 
         if self.phase is DockingPhase.HEADING and heading_fine:
             self.phase = DockingPhase.LATERAL

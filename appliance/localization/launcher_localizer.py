@@ -59,8 +59,10 @@ class ScannerSetup:
 
     mount: Pose2D
     range_offset_m: float = 0.0
-    systematic_range_sigma_m: float = 0.02
-    systematic_yaw_sigma_rad: float = math.radians(0.3)
+    # Uncalibrated: the data sheet's "typical" ±30 mm taken as 2σ, and a mount set to a
+    # few tenths of a degree (±0.3° as 2σ).
+    systematic_range_sigma_m: float = 0.015
+    systematic_yaw_sigma_rad: float = math.radians(0.15)
 
 
 @dataclass(frozen=True)
