@@ -16,6 +16,9 @@ BENCHMARKS = [
     "benchmarks.bench_lms111_stream",
     "benchmarks.bench_pc104",
     "benchmarks.bench_control",
+    "benchmarks.bench_scanner_model",
+    "benchmarks.bench_features",
+    "benchmarks.bench_docking",
 ]
 
 
