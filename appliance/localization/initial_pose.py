@@ -18,6 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.stats import chi2
 
 from appliance.localization.compound import wrap_angle_rad
 from appliance.localization.launcher_map import LauncherMap
@@ -39,10 +40,16 @@ class InitialPoseParams:
     # Both scanners' answers must agree this well.
     agree_position_m: float = 0.10
     agree_heading_rad: float = math.radians(1.0)
-    # The uncertainty of a board end along the board: beam spacing at that range and
-    # the footprint, taken as this fraction of the range plus a constant.
-    end_sigma_per_m: float = 0.004
-    end_sigma_floor_m: float = 0.01
+    # How well a board end is known along the board (``board_end_sigma_m``): the beam
+    # spacing and the LMS111's footprint (8 mm + 15 mrad x range), stretched by grazing
+    # incidence (capped at this cosine), plus a floor.
+    beam_step_rad: float = math.radians(0.25)
+    footprint_exit_m: float = 0.008
+    footprint_divergence_rad: float = 0.015
+    min_cos_incidence: float = 0.2
+    end_sigma_floor_m: float = 0.005
+    # The scanners' answers agree when their difference passes this χ² gate (3 dof).
+    agree_probability: float = 0.999
     # The scanners' systematic errors, unless calibrated: ±30 mm range, a few tenths of
     # a degree of mount yaw. They enter as a floor on the covariance.
     systematic_range_sigma_m: float = 0.02
@@ -89,22 +96,49 @@ def _candidates(
     return [], "launcher not in view"
 
 
+def board_end_sigma_m(
+    end_xy_m: tuple[float, float], sensor: Pose2D, normal: FloatArray, params: InitialPoseParams
+) -> float:
+    """How well a board's true end is known along the board.
+
+    The end lies somewhere between two beams, and the beam's footprint makes the board
+    look longer by up to half a footprint; both stretch along the board as the beam
+    grazes it (divided by the cosine of the incidence). So an end seen head-on and near
+    is worth far more than one seen at a slant and far.
+    """
+    ray = np.array(end_xy_m) - np.array([sensor.x_m, sensor.y_m])
+    range_m = float(np.hypot(ray[0], ray[1]))
+    cos_incidence = max(abs(float(ray @ normal)) / max(range_m, 1e-9), params.min_cos_incidence)
+    spread_m = range_m * params.beam_step_rad + 0.5 * (
+        params.footprint_exit_m + params.footprint_divergence_rad * range_m
+    )
+    return 0.5 * spread_m / cos_incidence + params.end_sigma_floor_m
+
+
 def _pose_from_board(
-    line: LineFeature, sensor: Pose2D, params: InitialPoseParams
+    line: LineFeature, sensor: Pose2D, half_width_m: float, params: InitialPoseParams
 ) -> tuple[FloatArray, FloatArray]:
-    """O_f's pose and covariance from a whole board (its ends' midpoint is the origin)."""
+    """O_f's pose and covariance from a whole board: its centre is the launcher's origin.
+
+    The centre is found from each end (the end, half the known width inwards) and the
+    two are weighted by how well each end is known, rather than taking the midpoint:
+    the ends' errors are not alike (one near and head-on, one far and grazing).
+    """
     yaw = wrap_angle_rad(-line.alpha_rad)
-    mid = 0.5 * (np.array(line.start_xy_m) + np.array(line.end_xy_m))
+    normal = np.array([math.cos(line.alpha_rad), math.sin(line.alpha_rad)])
+    direction = np.array([-normal[1], normal[0]])
+    ends = sorted((line.start_xy_m, line.end_xy_m), key=lambda p: float(direction @ np.array(p)))
+    low, high = (np.array(p) for p in ends)
+    centres = (low + direction * half_width_m, high - direction * half_width_m)
+    weights = [1.0 / board_end_sigma_m(p, sensor, normal, params) ** 2 for p in ends]
+    mid = (weights[0] * centres[0] + weights[1] * centres[1]) / sum(weights)
+    # Across the board the centre is on the fitted line.
+    mid = mid - normal * (float(normal @ mid) - line.r_m)
+    var_along = 1.0 / sum(weights)
     c, s = math.cos(yaw), math.sin(yaw)
     rot = np.array([[c, -s], [s, c]])
     d_rot = np.array([[-s, -c], [c, -s]])
     xy = -rot @ mid
-    # Covariance of the midpoint in O_f: across the board from (r, α), along from the ends.
-    normal = np.array([math.cos(line.alpha_rad), math.sin(line.alpha_rad)])
-    direction = np.array([-normal[1], normal[0]])
-    ranges = [math.dist(p, (sensor.x_m, sensor.y_m)) for p in (line.start_xy_m, line.end_xy_m)]
-    end_var = [(params.end_sigma_per_m * r + params.end_sigma_floor_m) ** 2 for r in ranges]
-    var_along = 0.25 * sum(end_var)
     var_r = float(line.covariance[0, 0]) + params.systematic_range_sigma_m**2
     var_alpha = float(line.covariance[1, 1]) + params.systematic_yaw_sigma_rad**2
     cov_mid = var_r * np.outer(normal, normal) + var_along * np.outer(direction, direction)
@@ -131,7 +165,8 @@ def initial_pose(
         if len(found) > 1:
             reasons[name] = "ambiguous: more than one board-sized line"
         elif found:
-            answers[name] = _pose_from_board(found[0], sensors[name], params)
+            half = launcher.half_width_m
+            answers[name] = _pose_from_board(found[0], sensors[name], half, params)
         else:
             reasons[name] = reason
     if not answers:
@@ -140,12 +175,13 @@ def initial_pose(
     if any(r.startswith("ambiguous") for r in reasons.values()):
         return InitialPoseRefusal("ambiguous: more than one board-sized line")
     poses = list(answers.values())
+    gate = float(chi2.ppf(params.agree_probability, 3))
     for other in poses[1:]:
         gap = other[0] - poses[0][0]
-        if (
-            math.hypot(gap[0], gap[1]) > params.agree_position_m
-            or abs(wrap_angle_rad(float(gap[2]))) > params.agree_heading_rad
-        ):
+        gap[2] = wrap_angle_rad(float(gap[2]))
+        distance = float(gap @ np.linalg.solve(other[1] + poses[0][1], gap))
+        far = math.hypot(gap[0], gap[1]) > params.agree_position_m
+        if distance > gate or far or abs(float(gap[2])) > params.agree_heading_rad:
             return InitialPoseRefusal("ambiguous: the scanners disagree on the board")
     information = sum(np.linalg.inv(cov) for _, cov in poses)
     covariance = np.linalg.inv(information)

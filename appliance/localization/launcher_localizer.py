@@ -33,6 +33,7 @@ from appliance.localization.compound import compound, compound_jacobians, wrap_a
 from appliance.localization.initial_pose import (
     InitialPose,
     InitialPoseParams,
+    board_end_sigma_m,
     initial_pose,
 )
 from appliance.localization.launcher_ekf import BodyMotion, EkfParams, LauncherEkf
@@ -82,10 +83,12 @@ class LocalizerParams:
     # Status: lost with no accepted measurement for this long, or beyond this σ.
     lost_after_s: float = 0.5
     lost_sigma_m: float = 0.15
-    degraded_sigma_m: float = 0.02
+    degraded_sigma_m: float = 0.05
     degraded_heading_sigma_rad: float = math.radians(0.5)
     # With no cylinder for this long, y rests on the board's ends alone.
     cylinder_degraded_after_s: float = 1.0
+    # A scanner that has given no usable scan for this long: the pose rests on one side.
+    scanner_silent_after_s: float = 0.3
 
 
 @dataclass(frozen=True)
@@ -145,6 +148,7 @@ class LauncherLocalizer:
         self._pending: dict[str, tuple[float, ScanFeatures]] = {}
         self._last_accept_s: float | None = None
         self._last_cylinder_s: float | None = None
+        self._last_scan_s: dict[str, float] = {}
         self.init_reason = "no scan yet"
         self.last_features: dict[str, ScanFeatures] = {}
 
@@ -163,6 +167,7 @@ class LauncherLocalizer:
         if now_s - t_s > self.params.scan_max_age_s:
             self.stale_scans += 1
             return
+        self._last_scan_s[sensor] = max(t_s, self._last_scan_s.get(sensor, t_s))
         if not self.ekf.initialized:
             self._initialize(sensor, ranges_m, angles_rad, t_s)
             return
@@ -276,12 +281,12 @@ class LauncherLocalizer:
 
     def _sighting(self, line: LineFeature, sensor: Pose2D, t_s: float) -> BoardSighting:
         initial = self.params.initial
-        tangent = np.array([-math.sin(line.alpha_rad), math.cos(line.alpha_rad)])
+        normal = np.array([math.cos(line.alpha_rad), math.sin(line.alpha_rad)])
+        tangent = np.array([-normal[1], normal[0]])
         ends = []
         sides = ((line.start_xy_m, line.start_occluded), (line.end_xy_m, line.end_occluded))
         for xy, occluded in sides:
-            distance = math.dist(xy, (sensor.x_m, sensor.y_m))
-            sigma = initial.end_sigma_per_m * distance + initial.end_sigma_floor_m
+            sigma = board_end_sigma_m(xy, sensor, normal, initial)
             ends.append((float(tangent @ np.array(xy)), None if occluded else BoardEnd(*xy, sigma)))
         ends.sort(key=lambda pair: pair[0])
         return BoardSighting(
@@ -289,6 +294,14 @@ class LauncherLocalizer:
         )
 
     # ---- what the rest of the vehicle reads ------------------------------------------
+    def _silent_scanners(self, now_s: float) -> list[str]:
+        limit = self.params.scanner_silent_after_s
+        return [
+            name
+            for name in sorted(self.scanners)
+            if now_s - self._last_scan_s.get(name, -math.inf) > limit
+        ]
+
     def estimate(self, now_s: float) -> LocalizationEstimate:
         p = self.params
         counts = (dict(self.ekf.accepted), dict(self.ekf.rejected))
@@ -308,6 +321,8 @@ class LauncherLocalizer:
         elif sigma_m > p.degraded_sigma_m or sigma_yaw > p.degraded_heading_sigma_rad:
             status = LocalizationStatus.DEGRADED
             reason = f"sigma {sigma_m * 1000:.0f} mm, {math.degrees(sigma_yaw):.2f} deg"
+        elif silent := self._silent_scanners(now_s):
+            status, reason = LocalizationStatus.DEGRADED, f"scanner {', '.join(silent)} silent"
         elif self._last_cylinder_s is None or (
             now_s - self._last_cylinder_s > p.cylinder_degraded_after_s
         ):

@@ -65,6 +65,9 @@ class DockRunParams:
     world_hz: float = 100.0
     timeout_s: float = 300.0
     lost_abort_s: float = 3.0  # the vehicle stops at once; the run gives up after this
+    # A scanner that stops sending at this time (a cable pulled mid-approach).
+    silence_scanner: str | None = None
+    silence_at_s: float = math.inf
     site: str = "launcher"
     docking: DockingParams = field(default_factory=DockingParams)
 
@@ -150,7 +153,8 @@ def run_dock(config: VehicleConfig, params: DockRunParams) -> DockResult:
 
     while t_s < params.timeout_s:
         for name in mounts:
-            if t_s + 1e-9 >= next_scan[name]:
+            silenced = name == params.silence_scanner and t_s >= params.silence_at_s
+            if t_s + 1e-9 >= next_scan[name] and not silenced:
                 ranges, _ = render_scan(
                     site, t_s, platform(state), mounts[name], rng=rngs[name],
                     errors=errors[name], step_rad=step_rad, cache=caches[name],
@@ -160,11 +164,11 @@ def run_dock(config: VehicleConfig, params: DockRunParams) -> DockResult:
         if t_s + 1e-9 >= next_control:
             next_control += control_dt
             estimate = localizer.estimate(t_s)
-            if estimate.status is LocalizationStatus.LOST or estimate.centre_pose is None:
+            if estimate.status is not LocalizationStatus.OK or estimate.centre_pose is None:
                 command_speed, pattern, front_rad, rear_rad = 0.0, MotionPattern.STOP, 0.0, 0.0
                 lost_since_s = t_s if lost_since_s is None else lost_since_s
                 if t_s - lost_since_s > params.lost_abort_s:
-                    reason = f"localization lost: {estimate.reason}"
+                    reason = f"localization {estimate.status}: {estimate.reason}"
                     break
             else:
                 lost_since_s = None
