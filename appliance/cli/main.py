@@ -8,6 +8,7 @@ import sys
 import click
 
 from appliance import __version__
+from appliance.cli.calibrate import calibrate
 from appliance.cli.calibration import calibration
 from appliance.cli.common import CONFIG_OPTION, load_or_exit
 from appliance.cli.config import config
@@ -58,6 +59,7 @@ cli.add_command(config)
 cli.add_command(lms111)
 cli.add_command(sim)
 cli.add_command(calibration)
+cli.add_command(calibrate)
 for _command in CONTROL_COMMANDS:
     cli.add_command(_command)
 

@@ -9,12 +9,21 @@ imply a steering-wheel travel a real vehicle has, and it must name the vehicle i
 measured on. Readings outside the calibrated range are refused, not extrapolated: outside
 it the pot is broken or unplugged, and a guess is worse than a fault.
 
+The optional ``[scanners.left]`` / ``[scanners.right]`` tables hold what ``dbw calibrate
+scanners`` measured of each LMS111 at the docked pose: a range offset and a mount yaw
+offset (and a lateral offset where the docking left it observable), with their σ. They
+came after version 1 without a version bump, like ``counter_steer`` and ``guidance``
+before them: the version says what the fields *mean*, and an optional table adds meaning
+without changing any other field's, so every version-1 file still loads unchanged.
+
 Reading and writing the file is :mod:`appliance.config.calibration_file`; the map's
-polynomial and its fit are :mod:`calibration.pot_map`.
+polynomial and its fit are :mod:`calibration.pot_map`; the scanner fit is
+:mod:`appliance.localization.scanner_calibration`.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from typing import Annotated, Final, Literal, Self
@@ -44,6 +53,14 @@ MIN_WHEEL_TRAVEL_RAD = 0.5
 MAX_WHEEL_TRAVEL_RAD = 30.0
 
 Counts = Annotated[int, Field(ge=0, le=POT_FULL_SCALE_COUNTS)]
+
+# Bounds of a scanner's calibration, the same as the fit's acceptance thresholds: a
+# larger offset is a wrong mount or a broken unit, not something to calibrate away.
+MAX_SCANNER_RANGE_OFFSET_M = 0.1  # the data sheet's systematic error is ±30 mm
+MAX_SCANNER_YAW_OFFSET_DEG = 2.0  # a bracket is off by tenths of a degree
+MAX_SCANNER_LATERAL_OFFSET_M = 0.05  # a bracket is off by millimetres
+MAX_SCANNER_RESIDUAL_RMS_M = 0.05
+SCANNER_NAMES: Final = ("left", "right")
 
 
 class _Model(BaseModel):
@@ -110,6 +127,53 @@ class GuidanceCalibration(_Model):
     look_ahead_m: float | None = Field(None, gt=0.0, le=50.0)
 
 
+def _is_utc(value: datetime, name: str) -> datetime:
+    if value.utcoffset() != UTC.utcoffset(None):
+        raise ValueError(f"{name} must be in UTC, ending in Z (got {value.isoformat()})")
+    return value.replace(tzinfo=UTC)
+
+
+class ScannerCalibrationEntry(_Model):
+    """One LMS111's calibration at the docked pose (``dbw calibrate scanners``).
+
+    ``range_offset_m`` is subtracted from every range; the calibrated mount is the
+    configured one turned by ``mount_yaw_offset_deg`` and moved by ``lateral_offset_m``
+    along the vehicle's y (absent: not observable, the configured y stands). Each σ
+    includes the docked pose's tolerance (``lateral_offset_sigma_m`` is there even when
+    the offset is not: it is the number that said so).
+    """
+
+    range_offset_m: float = Field(ge=-MAX_SCANNER_RANGE_OFFSET_M, le=MAX_SCANNER_RANGE_OFFSET_M)
+    range_offset_sigma_m: float = Field(ge=0.0, le=MAX_SCANNER_RANGE_OFFSET_M)
+    mount_yaw_offset_deg: float = Field(
+        ge=-MAX_SCANNER_YAW_OFFSET_DEG, le=MAX_SCANNER_YAW_OFFSET_DEG
+    )
+    mount_yaw_offset_sigma_deg: float = Field(ge=0.0, le=MAX_SCANNER_YAW_OFFSET_DEG)
+    lateral_offset_m: float | None = Field(
+        None, ge=-MAX_SCANNER_LATERAL_OFFSET_M, le=MAX_SCANNER_LATERAL_OFFSET_M
+    )
+    lateral_offset_sigma_m: float = Field(ge=0.0, le=1.0)
+    residual_rms_m: float = Field(ge=0.0, le=MAX_SCANNER_RESIDUAL_RMS_M)
+    method: str = Field(min_length=1)  # how it was measured (the fit, the pose, the files)
+    measured_utc: AwareDatetime
+
+    @field_validator("measured_utc")
+    @classmethod
+    def _measured_in_utc(cls, value: datetime) -> datetime:
+        return _is_utc(value, "measured_utc")
+
+    @property
+    def mount_yaw_offset_rad(self) -> float:
+        return math.radians(self.mount_yaw_offset_deg)
+
+
+class ScannersCalibration(_Model):
+    """Both front scanners' calibrations; either may be absent (not calibrated yet)."""
+
+    left: ScannerCalibrationEntry | None = None
+    right: ScannerCalibrationEntry | None = None
+
+
 class CalibrationFile(_Model):
     """One calibration file, schema version 1, as read from TOML."""
 
@@ -120,13 +184,12 @@ class CalibrationFile(_Model):
     steering: SteeringCalibration
     counter_steer: CounterSteerCalibration | None = None
     guidance: GuidanceCalibration | None = None
+    scanners: ScannersCalibration | None = None
 
     @field_validator("created_utc")
     @classmethod
-    def _is_utc(cls, value: datetime) -> datetime:
-        if value.utcoffset() != UTC.utcoffset(None):
-            raise ValueError(f"created_utc must be in UTC, ending in Z (got {value.isoformat()})")
-        return value.replace(tzinfo=UTC)
+    def _created_in_utc(cls, value: datetime) -> datetime:
+        return _is_utc(value, "created_utc")
 
 
 @dataclass(frozen=True)
@@ -143,6 +206,7 @@ class Calibration:
     steering_ratio: float
     counter_steer_k_ratio: float | None = None
     guidance_look_ahead_m: float | None = None
+    scanners: ScannersCalibration | None = None
 
     @classmethod
     def from_file(cls, model: CalibrationFile) -> Calibration:
@@ -158,7 +222,20 @@ class Calibration:
             steering_ratio=steering.steering_ratio,
             counter_steer_k_ratio=model.counter_steer.k_ratio if model.counter_steer else None,
             guidance_look_ahead_m=model.guidance.look_ahead_m if model.guidance else None,
+            scanners=model.scanners,
         )
+
+    def scanner(self, name: str) -> ScannerCalibrationEntry | None:
+        """The calibration of the ``left`` or ``right`` scanner, or None if it has none.
+
+        Any other name raises KeyError: a misspelt scanner must not read as uncalibrated.
+        """
+        if name not in SCANNER_NAMES:
+            raise KeyError(f"no scanner {name!r}: the calibration file knows {SCANNER_NAMES}")
+        if self.scanners is None:
+            return None
+        entry: ScannerCalibrationEntry | None = getattr(self.scanners, name)
+        return entry
 
     def wheel_rad_from_counts(self, counts: float) -> float | None:
         """Steering-wheel angle, or None for a reading outside the valid range (or NaN)."""

@@ -11,13 +11,20 @@ from __future__ import annotations
 
 import math
 import tomllib
+from collections.abc import Mapping
 from datetime import UTC, datetime
 from pathlib import Path
 
 from pydantic import BaseModel, ValidationError
 
 from appliance.config.atomic import write_text_atomic
-from appliance.config.calibration import SCHEMA_VERSION, Calibration, CalibrationFile
+from appliance.config.calibration import (
+    SCANNER_NAMES,
+    SCHEMA_VERSION,
+    Calibration,
+    CalibrationFile,
+    ScannerCalibrationEntry,
+)
 from appliance.config.loader import ConfigProblem, explain
 from appliance.config.simulated_calibration import simulated_calibration
 
@@ -149,6 +156,45 @@ def write_calibration(path: str | Path, model: CalibrationFile) -> None:
     if _parse_model(text, "<written calibration>").model_dump() != model.model_dump():
         raise ValueError("the written calibration does not read back equal (a writer bug)")
     write_text_atomic(path, text)
+
+
+def with_scanners(
+    model: CalibrationFile, entries: Mapping[str, ScannerCalibrationEntry]
+) -> CalibrationFile:
+    """``model`` with the named scanners' calibrations replaced and everything else as it
+    was (the other scanner's entry included), validated again as a whole."""
+    unknown = set(entries) - set(SCANNER_NAMES)
+    if unknown:
+        raise KeyError(f"no scanner {sorted(unknown)}: the calibration file knows {SCANNER_NAMES}")
+    data = model.model_dump()
+    scanners = dict(data.get("scanners") or {})
+    scanners.update({name: entry.model_dump() for name, entry in entries.items()})
+    data["scanners"] = scanners
+    return CalibrationFile.model_validate(data)
+
+
+def merge_scanner_calibration(
+    path: str | Path,
+    vehicle_name: str,
+    entries: Mapping[str, ScannerCalibrationEntry],
+    simulation_enabled: bool = False,
+) -> CalibrationFile:
+    """Read the calibration file at ``path`` (it must exist and be valid for the vehicle),
+    replace the named scanners' entries, and write it back atomically; returns what was
+    written. Raises `CalibrationError` for a file that cannot be read or used (the
+    built-in simulated calibration is no file to write into), OSError if writing fails."""
+    if str(path) == BUILTIN_SIMULATED:
+        raise CalibrationError(
+            BUILTIN_SIMULATED,
+            [
+                CalibrationProblem(
+                    "", "the built-in simulated calibration is not a file to merge into"
+                )
+            ],
+        )
+    merged = with_scanners(read_calibration_file(path, vehicle_name, simulation_enabled), entries)
+    write_calibration(path, merged)
+    return merged
 
 
 def _toml_table(model: BaseModel, prefix: str) -> str:
