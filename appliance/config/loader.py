@@ -182,7 +182,8 @@ def _allowed(info: FieldInfo) -> str:
 
 def to_toml(data: dict[str, object], prefix: str = "") -> str:
     """Render the effective config in TOML so it can be copied into a vehicle file."""
-    scalars = {k: v for k, v in data.items() if not isinstance(v, dict)}
+    # TOML has no null: an optional field left unset is simply not written.
+    scalars = {k: v for k, v in data.items() if not isinstance(v, dict) and v is not None}
     tables = {k: v for k, v in data.items() if isinstance(v, dict)}
     lines = []
     if prefix and scalars:

@@ -256,6 +256,34 @@ class Engagement(_Model):
     autopilot_source: str = Field("hold_straight", min_length=1)
 
 
+class Docking(_Model):
+    """The flat-bed's docking to its launcher (Qian et al. 4.1-4.2): the teeth on the
+    vehicle's front end, the launcher's landmarks, and where docking may be engaged.
+
+    The launcher frame: origin at the centre of the front board's face, +x into the
+    launcher, +y to the left of a vehicle facing it. Defaults are the built-in site's.
+    """
+
+    # The front end's centre ahead of the vehicle's geometric centre; None: half the length.
+    front_end_forward_m: float | None = Field(None, gt=0.0, le=30.0)
+    teeth_lateral_m: float = Field(1.0, ge=0.0, le=5.0)  # the two teeth at ±this
+    tooth_insertion_m: float = Field(0.15, gt=0.0, le=2.0)  # how far a tooth sticks out
+    trough_clearance_m: float = Field(0.01, gt=0.0, le=0.2)  # a trough is 2x this wider
+    standoff_m: float = Field(0.0, ge=0.0, le=20.0)  # gap 0: the front end this far out
+    max_speed_mps: float = Field(0.3, gt=0.0, le=2.0)
+    # The automatic navigation zone: docking is engaged only inside it.
+    zone_max_gap_m: float = Field(12.0, gt=0.0, le=50.0)
+    zone_max_lateral_m: float = Field(1.5, gt=0.0, le=10.0)
+    zone_max_heading_deg: float = Field(10.0, gt=0.0, le=45.0)
+    # The launcher.
+    front_board_width_m: float = Field(3.0, gt=0.0, le=20.0)
+    side_board_length_m: float = Field(0.8, gt=0.0, le=10.0)
+    side_board_sweep_deg: float = Field(45.0, ge=-90.0, le=90.0)
+    cylinder_radius_m: float = Field(0.15, gt=0.0, le=2.0)
+    cylinder_lateral_m: float = Field(2.5, gt=0.0, le=50.0)
+    cylinder_ahead_m: float = Field(0.5, ge=-20.0, le=20.0)
+
+
 class Supervision(_Model):
     """Restart policy shared by every supervised service unless the service overrides it."""
 
@@ -330,6 +358,7 @@ class VehicleConfig(_Model):
     staleness: Staleness = Staleness()
     safety: SafetyTimeouts = SafetyTimeouts()
     engagement: Engagement = Engagement()
+    docking: Docking = Docking()
     supervision: Supervision = Supervision()
     paths: Paths = Paths()
     simulation: Simulation = Simulation(enabled=False)

@@ -11,14 +11,29 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterable
+from dataclasses import replace
 
+from appliance.config.calibration import Calibration
 from appliance.config.models import Engagement, Limits, SafetyTimeouts, Staleness, VehicleConfig
+from appliance.guidance.dock_source import DockSourceParams, DockZone
+from appliance.guidance.docking import DockingParams
+from appliance.localization.launcher_localizer import LocalizerParams, ScannerSetup
+from appliance.localization.launcher_map import LauncherMap
+from appliance.perception.features import FeatureParams
+from drivers.geometry import Pose2D
+from drivers.lms111.mounted import mount_pose
 from drivers.pc104.client_core import ClientParams
 from safety.consistency import ErrorBudget, SteeringTrackingParams
 from safety.limits import LimitParams
 from safety.override import OperatorOverride, PedalOverrideParams, SteeringOverrideParams
 from safety.safe_state import SafeBrakeParams, SpeedRampParams
 from safety.staleness import DEFAULT_CRITICAL_INPUTS, StalenessGuard
+
+# What is left of a calibrated scanner's systematic error: the fit's own σ is about a
+# millimetre and a hundredth of a degree (docs/calibration.md), the range scale error
+# (±0.05 %) is not calibrated, and a mount may settle between calibrations.
+CALIBRATED_RANGE_FLOOR_M = 0.003
+CALIBRATED_YAW_FLOOR_RAD = math.radians(0.03)
 
 
 def limit_params(
@@ -115,3 +130,74 @@ def pc104_client_params(config: VehicleConfig) -> ClientParams:
         status_max_age_s=config.staleness.pc104_status_max_age_s,
         command_timeout_s=config.safety.lower_layer_command_timeout_s,
     )
+
+
+def scanner_setups(
+    config: VehicleConfig, calibration: Calibration | None
+) -> dict[str, ScannerSetup]:
+    """Each front scanner as the launcher localizer uses it: the configured mount, made
+    the calibrated one where ``dbw calibrate scanners`` has measured it.
+
+    Uncalibrated, the localizer carries the data sheet's systematic error; calibrated,
+    what is left of it. The yaw's σ is taken from the points, not the docked heading's
+    tolerance: that part is common to both scanners and defines the launcher's heading as
+    the one the vehicle docked at during calibration, which is the heading docking needs.
+    """
+    mounts = {
+        "left": config.geometry.scanner_left_mount,
+        "right": config.geometry.scanner_right_mount,
+    }
+    setups: dict[str, ScannerSetup] = {}
+    for name, mount in mounts.items():
+        configured = mount_pose(mount)
+        entry = calibration.scanner(name) if calibration is not None else None
+        if entry is None:
+            setups[name] = ScannerSetup(configured)
+            continue
+        lateral_m = entry.lateral_offset_m or 0.0
+        setups[name] = ScannerSetup(
+            Pose2D(
+                configured.x_m,
+                configured.y_m + lateral_m,
+                configured.yaw_rad + entry.mount_yaw_offset_rad,
+            ),
+            range_offset_m=entry.range_offset_m,
+            systematic_range_sigma_m=max(entry.range_offset_sigma_m, CALIBRATED_RANGE_FLOOR_M),
+            systematic_yaw_sigma_rad=CALIBRATED_YAW_FLOOR_RAD,
+        )
+    return setups
+
+
+def dock_source_params(config: VehicleConfig) -> DockSourceParams:
+    """The vehicle file's docking section as the dock source's parameters."""
+    d = config.docking
+    geometry = config.geometry
+    launcher = LauncherMap(
+        front_board_width_m=d.front_board_width_m,
+        side_board_length_m=d.side_board_length_m,
+        side_board_sweep_deg=d.side_board_sweep_deg,
+        cylinder_radius_m=d.cylinder_radius_m,
+        cylinder_lateral_m=d.cylinder_lateral_m,
+        cylinder_ahead_m=d.cylinder_ahead_m,
+    )
+    features = FeatureParams(circles=replace(FeatureParams().circles, radius_m=d.cylinder_radius_m))
+    docking = DockingParams(
+        front_end_forward_m=d.front_end_forward_m or geometry.length_m / 2.0,
+        teeth_lateral_m=d.teeth_lateral_m,
+        tooth_insertion_m=d.tooth_insertion_m,
+        trough_clearance_m=d.trough_clearance_m,
+        standoff_m=d.standoff_m,
+        max_speed_mps=min(d.max_speed_mps, config.limits.max_speed_mps),
+        max_rear_steer_rad=math.radians(config.limits.max_steer_angle_deg),
+        max_crab_rad=math.radians(min(15.0, config.limits.max_steer_angle_deg)),
+        wheelbase_m=geometry.wheelbase_m,
+    )
+    localizer = LocalizerParams(
+        launcher=launcher, features=features, scan_max_age_s=config.staleness.scan_max_age_s
+    )
+    zone = DockZone(
+        max_gap_m=d.zone_max_gap_m,
+        max_lateral_m=d.zone_max_lateral_m,
+        max_heading_rad=math.radians(d.zone_max_heading_deg),
+    )
+    return DockSourceParams(docking=docking, localizer=localizer, zone=zone)

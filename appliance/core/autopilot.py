@@ -14,7 +14,10 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Protocol
 
+from appliance.config import parts
+from appliance.config.calibration import Calibration
 from appliance.config.models import VehicleConfig, VehicleKind
+from appliance.guidance.dock_source import DockSource
 from drivers.lms111.mounted import MountedScan
 from drivers.pc104.messages import MotionPattern
 
@@ -27,6 +30,9 @@ class Observation:
     speed_mps: float | None
     steer_tyre_rad: float | None
     scans: Mapping[str, MountedScan | None] = field(default_factory=dict)
+    # Whether the operator has engaged (a source that plans, like docking, starts its plan
+    # afresh at each engagement and does not advance it while the operator drives).
+    engaged: bool = False
 
 
 @dataclass(frozen=True)
@@ -35,7 +41,10 @@ class AutopilotWish:
 
     ``ready=False`` refuses engagement with ``reason`` (and disengages if it happens while
     engaged: a source that lost its route cannot steer). ``max_speed_mps`` caps the
-    operator's set speed (a route's speed limit); None leaves it alone.
+    operator's set speed (a route's speed limit); None leaves it alone. ``reverse`` asks
+    for the set speed backwards, ``rear_steer_rad`` is the rear row's angle in the
+    REAR_STEER pattern (physical, left positive); the limits apply to both. ``status`` is
+    what the source has to say in `dbw status` (plain data: a pose, a phase, a gap).
     """
 
     ready: bool
@@ -43,6 +52,9 @@ class AutopilotWish:
     steer_tyre_rad: float = 0.0
     max_speed_mps: float | None = None
     pattern: MotionPattern | None = None  # None: the vehicle's default pattern
+    rear_steer_rad: float = 0.0
+    reverse: bool = False
+    status: Mapping[str, object] = field(default_factory=dict)
 
 
 class AutopilotSource(Protocol):
@@ -90,19 +102,54 @@ class Weave:
         return AutopilotWish(ready=True, steer_tyre_rad=self.params.amplitude_rad * math.sin(phase))
 
 
-AUTOPILOT_SOURCES: dict[str, Callable[[VehicleConfig], AutopilotSource]] = {
-    "hold_straight": lambda _config: HoldStraight(),
-    "weave": lambda _config: Weave(),
+class DockAutopilot:
+    """Qian et al.'s docking (``appliance.guidance.dock_source``) on this seam."""
+
+    name = "dock"
+
+    def __init__(self, source: DockSource) -> None:
+        self.source = source
+
+    def reset(self) -> None:
+        self.source.reset()
+
+    def update(self, observation: Observation) -> AutopilotWish:
+        wish = self.source.wish(observation.scans, observation.engaged, observation.now_s)
+        return AutopilotWish(
+            ready=wish.ready,
+            reason=wish.reason,
+            steer_tyre_rad=wish.front_steer_rad,
+            max_speed_mps=abs(wish.speed_mps),
+            pattern=wish.pattern,
+            rear_steer_rad=wish.rear_steer_rad,
+            reverse=wish.speed_mps < 0.0,
+            status=wish.status,
+        )
+
+
+def _dock_source(config: VehicleConfig, calibration: Calibration | None) -> AutopilotSource:
+    if config.kind is not VehicleKind.FLATBED:
+        raise ValueError(f"autopilot source 'dock' needs a flat-bed vehicle, not {config.kind}")
+    source = DockSource(parts.scanner_setups(config, calibration), parts.dock_source_params(config))
+    return DockAutopilot(source)
+
+
+SourceFactory = Callable[[VehicleConfig, "Calibration | None"], AutopilotSource]
+
+AUTOPILOT_SOURCES: dict[str, SourceFactory] = {
+    "hold_straight": lambda _config, _calibration: HoldStraight(),
+    "weave": lambda _config, _calibration: Weave(),
+    "dock": _dock_source,
 }
 
 
-def make_source(config: VehicleConfig) -> AutopilotSource:
+def make_source(config: VehicleConfig, calibration: Calibration | None = None) -> AutopilotSource:
     name = config.engagement.autopilot_source
     factory = AUTOPILOT_SOURCES.get(name)
     if factory is None:
         known = ", ".join(sorted(AUTOPILOT_SOURCES))
         raise ValueError(f"engagement.autopilot_source {name!r} is not one of: {known}")
-    return factory(config)
+    return factory(config, calibration)
 
 
 def default_pattern(kind: VehicleKind) -> MotionPattern:

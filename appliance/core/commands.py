@@ -10,6 +10,8 @@ rate limits' memory in one place that a restart clears.
 
 from __future__ import annotations
 
+import math
+
 from appliance.config import parts
 from appliance.config.calibration import Calibration
 from appliance.config.models import VehicleConfig
@@ -45,6 +47,7 @@ class CommandPaths:
     ) -> None:
         self.calibration = calibration
         self.pattern = pattern
+        self.max_steer_rad = math.radians(config.limits.max_steer_angle_deg)
         self.max_speed_mps = max_speed_mps
         self.hold_to_move = config.engagement.hold_to_move
         self.limiter = CommandLimiter(parts.limit_params(config.limits))
@@ -153,10 +156,15 @@ class CommandPaths:
     ) -> MotionCommand:
         if speed_mps is None or steer_rad is None:
             return MotionCommand.stop()
+        # The rear row's angle only in REAR_STEER, and never past the steering's lock.
+        limit = self.max_steer_rad
+        rear = max(-limit, min(limit, wish.rear_steer_rad))
+        pattern = wish.pattern or self.pattern
         return MotionCommand(
-            pattern=wish.pattern or self.pattern,
-            speed_mps=speed_mps,
+            pattern=pattern,
+            speed_mps=-speed_mps if wish.reverse else speed_mps,
             front_steer_rad=steer_rad,
+            rear_steer_rad=rear if pattern is MotionPattern.REAR_STEER else 0.0,
         )
 
 

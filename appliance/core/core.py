@@ -109,7 +109,7 @@ class ControlCore:
         self.calibration_problem = calibration_problem or (
             "" if calibration is not None else "calibration missing"
         )
-        self.autopilot = autopilot if autopilot is not None else make_source(config)
+        self.autopilot = autopilot if autopilot is not None else make_source(config, calibration)
         self.pattern = default_pattern(config.kind)
         self.mode_params = ModeParams(
             speed_step_mps=config.engagement.speed_step_mps,
@@ -312,7 +312,8 @@ class ControlCore:
         self._notes.append(Note(event, fields))
 
     def _wish(self, m: Measurements, inputs: ControlInputs, now_s: float) -> AutopilotWish:
-        observation = Observation(now_s, m.speed_mps, m.steer_tyre_rad, inputs.scans)
+        engaged = self.state.mode in AUTOMATIC_MODES
+        observation = Observation(now_s, m.speed_mps, m.steer_tyre_rad, inputs.scans, engaged)
         try:
             return self.autopilot.update(observation)
         except Exception as exc:  # a broken source must not take the safety layer with it
