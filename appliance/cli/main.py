@@ -13,7 +13,9 @@ from appliance.cli.calibration import calibration
 from appliance.cli.common import CONFIG_OPTION, load_or_exit
 from appliance.cli.config import config
 from appliance.cli.control import CONTROL_COMMANDS
+from appliance.cli.features import features
 from appliance.cli.lms111 import lms111
+from appliance.cli.localize import localize
 from appliance.cli.sim import sim
 from appliance.logs import LEVELS, configure_logging
 
@@ -60,6 +62,8 @@ cli.add_command(lms111)
 cli.add_command(sim)
 cli.add_command(calibration)
 cli.add_command(calibrate)
+cli.add_command(features)
+cli.add_command(localize)
 for _command in CONTROL_COMMANDS:
     cli.add_command(_command)
 

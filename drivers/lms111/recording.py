@@ -37,6 +37,7 @@ from drivers.lms111.connection import Lms111Connection
 from drivers.lms111.errors import ProtocolError
 from drivers.lms111.framing import NEED_DATA, Dialect
 from drivers.lms111.handshake import StreamSettings, start_streaming
+from drivers.lms111.mounted import DEVICE_FORWARD_RAD
 from drivers.lms111.scan import Scan
 from drivers.lms111.session import Lms111Session
 
@@ -356,3 +357,114 @@ def summarize_recording(
     return RecordingSummary(
         str(path), header.dialect.value, scans, errors, dropped, first, last, duration_s, truncated
     )
+
+
+@dataclass(frozen=True)
+class RecordedScans:
+    """A whole recording's scans in memory (``dbw features``, ``dbw localize``)."""
+
+    path: str
+    header: RecordingHeader
+    scans: tuple[Scan, ...]
+    dropped_telegrams: int
+    truncated: str | None  # the message, if the file was cut off: the scans before it are here
+
+
+def read_scans(path: str | Path) -> RecordedScans:
+    """Every scan of a recording, in order. A file cut off inside a record gives the scans
+    before the cut and says where in ``truncated``; `RecordingError` if it is not a
+    recording, `OSError` if it cannot be read."""
+    header = read_header(path)
+    scans: list[Scan] = []
+    dropped = 0
+    truncated: str | None = None
+    try:
+        for event in iter_recording(path):
+            if isinstance(event, ReplayError):
+                dropped += 1
+            else:
+                scans.append(event)
+    except RecordingTruncated as exc:
+        truncated = str(exc)
+    return RecordedScans(str(path), header, tuple(scans), dropped, truncated)
+
+
+# ``dbw lms111 decode --export csv``: one row per beam.
+EXPORT_CSV_COLUMNS: Final = (
+    "scan_index",
+    "host_receive_time_s",
+    "device_time_us",
+    "scan_counter",
+    "telegram_counter",
+    "beam_index",
+    "device_angle_deg",
+    "sensor_angle_rad",
+    "range_m",
+    "intensity",
+)
+
+
+def _beams(scan: Scan) -> tuple[list[float], list[float], list[float], list[float] | None]:
+    """Per beam: device angle (degrees, 90° out of the window), sensor-frame angle
+    (radians, x out of the window, as perception takes it), range (m, 0 = no echo),
+    intensity (RSSI1 digits, None when the scan carries none)."""
+    ranges = scan.ranges_m
+    beams = len(ranges)
+    angles = scan.angles_rad[:beams]
+    # The device counts in 1/10000 degree: four decimals give its number back exactly.
+    device_deg = np.round(np.degrees(angles), 4)
+    intensities = scan.intensities
+    return (
+        device_deg.tolist(),
+        (angles - DEVICE_FORWARD_RAD).tolist(),
+        ranges.tolist(),
+        intensities[:beams].tolist() if intensities is not None else None,
+    )
+
+
+def scan_export(scan: Scan, index: int) -> dict[str, Any]:
+    """One scan with every beam, as plain JSON-able values (``decode --export jsonl``).
+
+    ``index`` is the scan's place in the recording (0 = the first). Angles are given
+    twice: ``device_angle_deg`` as the LMS111 counts (90° straight out of the window) and
+    ``sensor_angle_rad`` = device − 90° (x out of the window, counter-clockwise), what
+    the perception code takes. ``range_m`` 0 means no echo.
+    """
+    device_deg, sensor_rad, ranges, intensities = _beams(scan)
+    return {
+        "scan_index": index,
+        "host_receive_time_s": scan.host_receive_time_s,
+        "serial_number": scan.serial_number,
+        "scan_counter": scan.scan_counter,
+        "telegram_counter": scan.telegram_counter,
+        "device_time_us": scan.device_time_us,
+        "transmit_time_us": scan.transmit_time_us,
+        "device_status": scan.device_status,
+        "scan_frequency_hz": scan.scan_frequency_hz,
+        "beams": len(ranges),
+        "device_angle_deg": device_deg,
+        "sensor_angle_rad": sensor_rad,
+        "range_m": ranges,
+        "intensity": intensities,
+    }
+
+
+def scan_export_rows(scan: Scan, index: int) -> Iterator[tuple[Any, ...]]:
+    """One scan as CSV rows, one per beam, in `EXPORT_CSV_COLUMNS` order (an intensity the
+    scan does not carry is an empty field)."""
+    device_deg, sensor_rad, ranges, intensities = _beams(scan)
+    time_s = scan.host_receive_time_s if scan.host_receive_time_s is not None else ""
+    for beam, (deg, rad, range_m) in enumerate(zip(device_deg, sensor_rad, ranges, strict=True)):
+        intensity = intensities[beam] if intensities is not None and beam < len(intensities) else ""
+        yield (
+            index,
+            time_s,
+            scan.device_time_us,
+            scan.scan_counter,
+            scan.telegram_counter,
+            beam,
+            deg,
+            rad,
+            range_m,
+            intensity,
+        )
