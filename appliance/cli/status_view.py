@@ -42,6 +42,7 @@ def render_status(doc: dict[str, Any]) -> str:
         lines.append("last refusal:")
         lines += [f"  - {reason}" for reason in refusals]
     lines += _faults(doc)
+    lines += _autopilot(doc)
     lines += _inputs(doc)
     lines += _name_table("commands", doc.get("commands"))
     overrides = as_dict(doc.get("overrides"))
@@ -82,6 +83,43 @@ def speed_line(doc: dict[str, Any]) -> str:
     if measured_mps is not None:
         parts.append(f"measured {measured_mps:.2f} m/s")
     return "speed: " + ", ".join(parts) if parts else ""
+
+
+def _autopilot(doc: dict[str, Any]) -> list[str]:
+    """The source's own view: for docking, the pose on the launcher and the plan."""
+    pilot = as_dict(doc.get("autopilot"))
+    lines = []
+    localization = as_dict(pilot.get("localization"))
+    if localization:
+        status = clean_text(localization.get("status"))
+        quality = _number(localization.get("quality"))
+        reason = clean_text(localization.get("reason"))
+        head = f"localization: {status}"
+        if quality is not None:
+            head += f", quality {quality:.0f}"
+        lines.append(head + (f" ({reason})" if reason else ""))
+        pose = as_dict(localization.get("pose"))
+        x, y, h = (_finite(pose.get(k)) for k in ("x_m", "y_m", "heading_deg"))
+        sx, sy, sh = (_finite(pose.get(k)) for k in ("sigma_x_m", "sigma_y_m", "sigma_heading_deg"))
+        if None not in (x, y, h, sx, sy, sh):
+            lines.append(
+                f"  pose on the launcher: x {x:+.3f} m ±{sx:.3f}, y {y:+.3f} m ±{sy:.3f}, "
+                f"heading {h:+.2f} deg ±{sh:.2f}"
+            )
+    docking = as_dict(pilot.get("docking"))
+    gap, lateral = _finite(docking.get("gap_m")), _finite(docking.get("lateral_m"))
+    if gap is not None and lateral is not None:
+        phase = clean_text(docking.get("phase")) or "?"
+        pattern = clean_text(docking.get("pattern"))
+        line = f"docking: {phase}, gap {gap * 1000:.0f} mm, lateral {lateral * 1000:+.1f} mm"
+        if pattern:
+            switches = _number(docking.get("pattern_switches"))
+            line += f", {pattern}" + (f" ({switches:.0f} switches)" if switches is not None else "")
+        lines.append(line)
+    refused = clean_text(pilot.get("refused"))
+    if refused:
+        lines.append(f"autopilot ({clean_text(pilot.get('source'))}): refuses: {refused}")
+    return lines
 
 
 def _faults(doc: dict[str, Any]) -> list[str]:

@@ -129,6 +129,7 @@ class ControlCore:
 
     def reset(self) -> None:
         """The state after any (re)start: BOOT, nothing engaged, every rule forgotten."""
+        self.last_wish: AutopilotWish | None = None
         self.state = ModeState()
         self.mode_since_s: float | None = None
         self.self_check_since_s: float | None = None
@@ -182,6 +183,7 @@ class ControlCore:
             inputs.panel if "board.panel" in fresh else None, inputs.panel_seq
         )
         wish = self._wish(m, inputs, now_s)
+        self.last_wish = wish
         conditions = self._engage_conditions(stale, m, operator, wish)
         self._conditions = conditions
 
@@ -279,6 +281,8 @@ class ControlCore:
             faults=self.faults,
             last_output=self.last_output,
             now_s=now_s,
+            autopilot_name=self.autopilot.name,
+            last_wish=self.last_wish,
         )
 
     # ---- pieces of the cycle -------------------------------------------------------------

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from typing import Any
 
+from appliance.core.autopilot import AutopilotWish
 from appliance.core.observe import Measurements
 from appliance.core.output import CoreOutput, describe_commands
 from appliance.modes import ModeState
@@ -25,6 +26,8 @@ def core_status(
     faults: FaultMonitor,
     last_output: CoreOutput | None,
     now_s: float,
+    autopilot_name: str = "",
+    last_wish: AutopilotWish | None = None,
 ) -> dict[str, Any]:
     out = last_output
     m = measured
@@ -65,4 +68,10 @@ def core_status(
             "throttle_pedal": out.operator.throttle_pedal,
         },
         "commands": {} if out is None else describe_commands(out),
+        "autopilot": {
+            "source": autopilot_name,
+            "ready": None if last_wish is None else last_wish.ready,
+            "reason": "" if last_wish is None else last_wish.reason,
+            **({} if last_wish is None else dict(last_wish.status)),
+        },
     }

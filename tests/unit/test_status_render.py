@@ -141,6 +141,45 @@ def test_ready_says_whether_an_engage_press_would_be_accepted() -> None:
     assert "engage now" not in render_status({"mode": "engaged", "engage_blockers": []})
 
 
+def test_docking_shows_the_pose_on_the_launcher_and_the_plan() -> None:
+    text = render_status(
+        {
+            "mode": "speed_hold",
+            "autopilot": {
+                "source": "dock",
+                "ready": True,
+                "localization": {
+                    "status": "ok",
+                    "quality": 93,
+                    "reason": "",
+                    "pose": {
+                        "x_m": -7.2,
+                        "y_m": 0.0123,
+                        "heading_deg": 0.05,
+                        "sigma_x_m": 0.002,
+                        "sigma_y_m": 0.003,
+                        "sigma_heading_deg": 0.02,
+                    },
+                },
+                "docking": {
+                    "phase": "approach",
+                    "pattern": "oblique",
+                    "pattern_switches": 3,
+                    "gap_m": 1.234,
+                    "lateral_m": 0.0045,
+                },
+            },
+        }
+    )
+    assert "localization: ok, quality 93" in text
+    assert "pose on the launcher: x -7.200 m ±0.002, y +0.012 m ±0.003" in text
+    assert "docking: approach, gap 1234 mm, lateral +4.5 mm, oblique (3 switches)" in text
+    refused = render_status(
+        {"autopilot": {"source": "dock", "refused": "outside the automatic zone: 14.0 m out"}}
+    )
+    assert "autopilot (dock): refuses: outside the automatic zone: 14.0 m out" in refused
+
+
 def test_empty_document() -> None:
     assert render_status({}) == "UNKNOWN MODE"
 
