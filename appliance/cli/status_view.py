@@ -91,9 +91,10 @@ def _autopilot(doc: dict[str, Any]) -> list[str]:
     lines = []
     localization = as_dict(pilot.get("localization"))
     if localization:
-        status = clean_text(localization.get("status"))
-        quality = _number(localization.get("quality"))
-        reason = clean_text(localization.get("reason"))
+        status_value, reason_value = localization.get("status"), localization.get("reason")
+        status = clean_text(status_value) if isinstance(status_value, str) else "?"
+        quality = _finite(localization.get("quality"))
+        reason = clean_text(reason_value) if isinstance(reason_value, str) else ""
         head = f"localization: {status}"
         if quality is not None:
             head += f", quality {quality:.0f}"
@@ -109,16 +110,18 @@ def _autopilot(doc: dict[str, Any]) -> list[str]:
     docking = as_dict(pilot.get("docking"))
     gap, lateral = _finite(docking.get("gap_m")), _finite(docking.get("lateral_m"))
     if gap is not None and lateral is not None:
-        phase = clean_text(docking.get("phase")) or "?"
-        pattern = clean_text(docking.get("pattern"))
+        phase_value, pattern_value = docking.get("phase"), docking.get("pattern")
+        phase = clean_text(phase_value) if isinstance(phase_value, str) else "?"
+        pattern = clean_text(pattern_value) if isinstance(pattern_value, str) else ""
         line = f"docking: {phase}, gap {gap * 1000:.0f} mm, lateral {lateral * 1000:+.1f} mm"
         if pattern:
-            switches = _number(docking.get("pattern_switches"))
+            switches = _finite(docking.get("pattern_switches"))
             line += f", {pattern}" + (f" ({switches:.0f} switches)" if switches is not None else "")
         lines.append(line)
-    refused = clean_text(pilot.get("refused"))
-    if refused:
-        lines.append(f"autopilot ({clean_text(pilot.get('source'))}): refuses: {refused}")
+    refused, source = pilot.get("refused"), pilot.get("source")
+    if isinstance(refused, str) and refused:
+        name = clean_text(source) if isinstance(source, str) else "?"
+        lines.append(f"autopilot ({name}): refuses: {clean_text(refused)}")
     return lines
 
 
