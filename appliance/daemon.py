@@ -24,7 +24,12 @@ from typing import Any
 
 from appliance.config import VehicleConfig
 from appliance.config.calibration import Calibration
-from appliance.config.calibration_file import CalibrationError, load_calibration
+from appliance.config.calibration_file import (
+    BUILTIN_SIMULATED,
+    CalibrationError,
+    load_calibration,
+    read_calibration_file,
+)
 from appliance.control_loop import ControlLoop, OperatorWatch, TopicInputs
 from appliance.control_socket import ControlServer
 from appliance.core.autopilot import AutopilotSource
@@ -33,6 +38,7 @@ from appliance.core.output import CoreOutput
 from appliance.daemon_status import service_summary, status_document, status_line
 from appliance.logs import get_logger
 from appliance.loop_monitor import LoopLag, LoopMonitor
+from appliance.sim.scanner_truth import with_simulated_scanners
 from appliance.supervisor import ServiceContext, ServiceSpec, ServiceState, Supervisor
 from appliance.systemd_notify import SystemdNotifier
 from appliance.vehicle_io import (
@@ -413,7 +419,11 @@ def load_vehicle_calibration(config: VehicleConfig) -> tuple[Calibration | None,
     """The calibration, or None and why: the daemon still runs, but will not leave SELF_CHECK."""
     path = config.paths.calibration_file
     try:
-        calibration = load_calibration(path, config.name, config.simulation.enabled)
+        if str(path) == BUILTIN_SIMULATED:
+            model = read_calibration_file(path, config.name, config.simulation.enabled)
+            calibration = Calibration.from_file(with_simulated_scanners(model, config))
+        else:
+            calibration = load_calibration(path, config.name, config.simulation.enabled)
     except CalibrationError as exc:
         log.error("calibration_invalid", path=path, problems=exc.render())
         return None, f"calibration {path}: " + "; ".join(str(p) for p in exc.problems)

@@ -24,6 +24,7 @@ from appliance.config.calibration_file import (
     write_calibration,
 )
 from appliance.config.simulated_calibration import simulated_calibration
+from appliance.sim.scanner_truth import with_simulated_scanners
 
 
 def _read_or_exit(file: str, config: VehicleConfig) -> CalibrationFile:
@@ -96,7 +97,7 @@ def calibration_write_simulated(out: str, config_name: str | None) -> None:
             "the simulated vehicle's mapping: use it only with `dbw sim`, never on a vehicle",
             err=True,
         )
-    model = simulated_calibration(config.name)
+    model = with_simulated_scanners(simulated_calibration(config.name), config)
     try:
         write_calibration(out, model)
     except OSError as exc:

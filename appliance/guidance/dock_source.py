@@ -103,12 +103,20 @@ class DockSource:
         self.params = params or DockSourceParams()
         self.localizer = LauncherLocalizer(scanners, self.params.localizer)
         self.controller = DockingController(self.params.docking)
-        self.reset()
+        self._seen: dict[str, MountedScan] = {}
+        self.forget()
 
     def reset(self) -> None:
+        """A new plan (the core calls this at every engagement). The pose is not the
+        plan's: the localizer keeps tracking across engagements, or every engagement
+        would begin with the launcher "not in view" until both scanners found it again."""
+        self.controller.reset()
+
+    def forget(self) -> None:
+        """Everything, the pose included: the source as it was built."""
         self.localizer.reset()
         self.controller.reset()
-        self._seen: dict[str, MountedScan] = {}
+        self._seen = {}
 
     def _feed(self, scans: Mapping[str, MountedScan | None], now_s: float) -> None:
         for name, mounted in scans.items():

@@ -73,6 +73,9 @@ class DockingParams:
     lateral_gain_per_s: float = 0.4
     max_rear_steer_rad: float = math.radians(20.0)
     max_crab_rad: float = math.radians(15.0)
+    # How fast a crab or rear angle may change: a heavy vehicle's wheels turn slowly, and
+    # a steering servo asked for more than it can follow reports a position error.
+    max_steer_rate_rad_per_s: float = math.radians(3.0)
     wheelbase_m: float = 6.0
     # The gate, before the teeth reach the troughs: go on only aligned this well, with
     # an estimate this certain; otherwise back off by ``back_off_m`` and try again.
@@ -149,12 +152,24 @@ class DockingController:
         self._back_off_until_gap_m = 0.0
         self._misaligned_since_s: float | None = None
         self._since_bad: dict[str, float] = {}
+        self._front_rad = 0.0
+        self._rear_rad = 0.0
+        self._steer_s: float | None = None
 
     def _threshold(self, gap_m: float, far: float, near: float) -> float:
         p = self.params
         span = max(p.far_gap_m - p.gate_gap_m, 1e-6)
         w = min(1.0, max(0.0, (gap_m - p.gate_gap_m) / span))
         return near + w * (far - near)
+
+    def _steer(self, front_rad: float, rear_rad: float, now_s: float) -> tuple[float, float]:
+        """The angles moved toward the wanted ones no faster than the rate limit."""
+        dt_s = 0.0 if self._steer_s is None else max(0.0, now_s - self._steer_s)
+        self._steer_s = now_s
+        step = self.params.max_steer_rate_rad_per_s * dt_s
+        self._front_rad += max(-step, min(step, front_rad - self._front_rad))
+        self._rear_rad += max(-step, min(step, rear_rad - self._rear_rad))
+        return self._front_rad, self._rear_rad
 
     def _persists(self, what: str, condition: bool, now_s: float) -> bool:
         """``condition`` has held without a break for ``enter_persist_s``."""
@@ -274,11 +289,11 @@ class DockingController:
             yaw_rate = -p.heading_gain_per_s * heading
             rear = -math.atan(yaw_rate * p.wheelbase_m / max(speed, 1e-3))
             rear = max(-p.max_rear_steer_rad, min(p.max_rear_steer_rad, rear))
-            return command(pattern, speed, rear=rear)
+            return command(pattern, speed, *self._steer(0.0, rear, now_s))
         if pattern is MotionPattern.OBLIQUE:
             wanted_lateral_mps = -p.lateral_gain_per_s * lateral
             ratio = max(-0.99, min(0.99, wanted_lateral_mps / max(speed, 1e-3)))
             crab = math.asin(ratio) - heading
             crab = max(-p.max_crab_rad, min(p.max_crab_rad, crab))
-            return command(pattern, speed, front=crab)
-        return command(pattern, speed)
+            return command(pattern, speed, *self._steer(crab, 0.0, now_s))
+        return command(pattern, speed, *self._steer(0.0, 0.0, now_s))

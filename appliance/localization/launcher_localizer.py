@@ -86,7 +86,7 @@ class LocalizerParams:
     degraded_sigma_m: float = 0.05
     degraded_heading_sigma_rad: float = math.radians(0.5)
     # With no cylinder for this long, y rests on the board's ends alone.
-    cylinder_degraded_after_s: float = 1.0
+    cylinder_degraded_after_s: float = 3.0
     # A scanner that has given no usable scan for this long: the pose rests on one side.
     scanner_silent_after_s: float = 0.3
 

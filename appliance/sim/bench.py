@@ -296,6 +296,7 @@ class SimBench:
                 "x_m": state.x_m,
                 "y_m": state.y_m,
                 "yaw_rad": state.yaw_rad,
+                "platform_yaw_rad": state.platform_yaw_rad,  # where the scanners look from
                 "speed_mps": state.speed_mps,
             },
             "steering": {

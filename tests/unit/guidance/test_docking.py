@@ -62,11 +62,15 @@ def test_the_papers_order_heading_then_lateral_then_approach() -> None:
     controller = DockingController(PARAMS)
     first = controller.update(_centre_for(9.0, 0.5, math.radians(3.0)), SURE, 0.0)
     assert (first.phase, first.pattern) == (DockingPhase.HEADING, MotionPattern.REAR_STEER)
+    assert first.rear_steer_rad == 0.0  # the wheels turn at their rate, from where they are
+    turning = controller.update(_centre_for(9.0, 0.5, math.radians(3.0)), SURE, 1.0)
     # heading 3° to the left: the rear wheels go left to turn the nose right
-    assert first.rear_steer_rad > 0.0
+    assert 0.0 < turning.rear_steer_rad <= PARAMS.max_steer_rate_rad_per_s * 1.0 + 1e-12
     second = controller.update(_centre_for(8.9, 0.5, 0.0), SURE, 2.0)
     assert (second.phase, second.pattern) == (DockingPhase.LATERAL, MotionPattern.OBLIQUE)
-    assert second.front_steer_rad < 0.0  # 0.5 m left of the axis: crab to the right
+    later = controller.update(_centre_for(8.9, 0.5, 0.0), SURE, 4.0)
+    assert later.front_steer_rad < 0.0  # 0.5 m left of the axis: crab to the right
+    assert later.rear_steer_rad == 0.0
     third = controller.update(_centre_for(8.0, 0.0, 0.0), SURE, 4.0)
     assert (third.phase, third.pattern) == (DockingPhase.APPROACH, MotionPattern.STRAIGHT)
     assert controller.switches == 2
