@@ -80,7 +80,8 @@ async def until(predicate: object, timeout_s: float, daemon: Daemon, what: str) 
             pytest.fail(
                 f"{what}: not within {timeout_s} s; mode {doc.get('mode')}, "
                 f"blockers {doc.get('engage_blockers')}, faults {doc.get('faults')}, "
-                f"history {doc.get('fault_history', [])[-6:]}, last_refusal {doc.get('last_refusal')}"
+                f"history {doc.get('fault_history', [])[-6:]}, "
+                f"last refusal {doc.get('last_refusal')}"
             )
         await asyncio.sleep(0.02)
     return time.monotonic() - started
