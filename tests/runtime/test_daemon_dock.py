@@ -28,7 +28,7 @@ from tests.runtime.twin_view import TwinView
 pytestmark = pytest.mark.slow
 
 READY_TIMEOUT_S = 40.0
-DOCK_TIMEOUT_S = 90.0  # about 35 s of approach from 3 m at walking pace, on a shared machine
+DOCK_TIMEOUT_S = 120.0  # about 35 s of approach from 3 m at walking pace, on a shared machine
 
 
 def dock_config(start_gap_m: float = 3.0) -> VehicleConfig:
@@ -77,8 +77,9 @@ async def until(predicate: object, timeout_s: float, daemon: Daemon, what: str) 
     while not predicate():
         if time.monotonic() - started > timeout_s:
             doc = daemon.status_document()
+            pilot = doc.get("autopilot", {})
             pytest.fail(
-                f"{what}: not within {timeout_s} s; mode {doc.get('mode')}, "
+                f"{what}: not within {timeout_s} s; autopilot {pilot}; mode {doc.get('mode')}, "
                 f"blockers {doc.get('engage_blockers')}, faults {doc.get('faults')}, "
                 f"history {doc.get('fault_history', [])[-6:]}, "
                 f"last refusal {doc.get('last_refusal')}"
