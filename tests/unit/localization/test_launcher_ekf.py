@@ -175,7 +175,7 @@ def test_a_malformed_measurement_is_refused() -> None:
 def _run_filter(seed: int, launcher: LauncherMap) -> tuple[np.ndarray, np.ndarray]:
     """NEES per sample of one approach, and the final estimate error."""
     rng = np.random.default_rng(seed)
-    samples = approach(rng, launcher)
+    samples = approach(rng, launcher, duration_s=12.0)
     first = samples[0]
     p0 = np.diag([0.05**2, 0.05**2, math.radians(0.5) ** 2])
     start = first.truth + rng.multivariate_normal(np.zeros(3), p0)
@@ -201,7 +201,7 @@ def test_the_filter_is_consistent_over_monte_carlo_runs() -> None:
     reproducible. (The filter is on the cautious side, about 2.5 against 3: the board's
     velocity is taken to keep its error for its whole window, see ``BodyMotion``.)"""
     launcher = LauncherMap()
-    runs = 24
+    runs = 16
     per_run = [_run_filter(seed, launcher)[0] for seed in range(runs)]
     steps = min(len(r) for r in per_run)
     mean_nees = np.mean([r[:steps] for r in per_run], axis=0)
