@@ -11,26 +11,18 @@ from __future__ import annotations
 
 import json
 import math
-import subprocess
-import sys
 from pathlib import Path
 
-import numpy as np
 import pytest
 
 from appliance.config import load_config
 from appliance.config.calibration_file import read_calibration_file, write_calibration
 from appliance.config.simulated_calibration import simulated_calibration
 from appliance.sim.scanner_errors import ScannerErrors, draw_scanner_errors
-from appliance.sim.scanner_model import RayCache, render_scan
-from appliance.sim.site_file import load_site
 from drivers.geometry import Pose2D
-from drivers.lms111.connection import Lms111Connection
-from drivers.lms111.framing import Dialect
 from drivers.lms111.mounted import mount_pose
-from drivers.lms111.recording import RecordingWriter
-from drivers.lms111.replies import ScanConfig
-from drivers.lms111.twin_device import DeviceModel
+from tests.runtime import recordings as shared_recordings
+from tests.runtime.recordings import dbw
 
 FLATBED = load_config("flatbed")
 MOUNTS = {
@@ -50,52 +42,16 @@ def record(
     serial_number: int = 0x0142_0001,
     noise_seed: int = 0,
 ) -> None:
-    """A recording of ``scans`` scans at 25 Hz and 0.25°, in CoLa-B as on the flat-bed."""
-    site = load_site("launcher")
-    rng = np.random.default_rng(noise_seed)
-    cache = RayCache()
-
-    def measure(t_s: float, angles_rad: np.ndarray) -> tuple[np.ndarray, ...]:
-        step = float(angles_rad[1] - angles_rad[0])
-        ranges, remission = render_scan(
-            site,
-            t_s,
-            DOCKED_CENTRE,
-            mount,
-            rng=rng,
-            errors=errors,
-            start_angle_rad=float(angles_rad[0]),
-            stop_angle_rad=float(angles_rad[-1]),
-            step_rad=step,
-            cache=cache,
-        )
-        return np.resize(ranges, angles_rad.size), np.resize(remission, angles_rad.size)
-
-    device = DeviceModel(
-        measure,
+    """A recording of ``scans`` scans at 25 Hz and 0.25°, in CoLa-B, taken docked."""
+    shared_recordings.record(
+        path,
+        mount,
+        lambda _t_s: DOCKED_CENTRE,
+        errors,
+        scans=scans,
         serial_number=serial_number,
-        dialect=Dialect.COLA_B,
-        config=ScanConfig.from_si(25.0, 0.25),
+        noise_seed=noise_seed,
     )
-    connection = Lms111Connection(Dialect.COLA_B)
-    metadata = {"host": "127.0.0.1", "port": 2111, "dialect": Dialect.COLA_B.value}
-    with RecordingWriter(path, metadata) as writer:
-        for k in range(scans):
-            t_s = 1.0 + k * device.period_s
-            scan = device.measure(t_s)
-            assert scan is not None
-            writer.write_chunk(connection.send_scan(device.telegram(scan)), t_s)
-
-
-def dbw(*args: str) -> tuple[int, str, str]:
-    done = subprocess.run(
-        [sys.executable, "-m", "appliance", "--log-format", "json", *args],
-        capture_output=True,
-        text=True,
-        timeout=120,
-        check=False,
-    )
-    return done.returncode, done.stdout, done.stderr
 
 
 @pytest.fixture(scope="module")
