@@ -15,7 +15,7 @@ automatic motion on. A scan older than ``scan_max_age_s`` is never used.
 from __future__ import annotations
 
 import math
-from collections import Counter
+from collections import Counter, deque
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from enum import StrEnum
@@ -36,8 +36,13 @@ from appliance.localization.initial_pose import (
     board_end_sigma_m,
     initial_pose,
 )
-from appliance.localization.launcher_ekf import BodyMotion, EkfParams, LauncherEkf
-from appliance.localization.launcher_map import LauncherMap
+from appliance.localization.launcher_ekf import (
+    BodyMotion,
+    EkfParams,
+    LauncherEkf,
+    cylinder_measurement,
+)
+from appliance.localization.launcher_map import CylinderLandmark, LauncherMap
 from appliance.perception.features import DiscRoi, FeatureParams, LineRoi, extract_features
 from appliance.perception.types import CircleFeature, LineFeature, ScanFeatures
 from drivers.geometry import Pose2D
@@ -89,6 +94,17 @@ class LocalizerParams:
     cylinder_degraded_after_s: float = 3.0
     # A scanner that has given no usable scan for this long: the pose rests on one side.
     scanner_silent_after_s: float = 0.3
+    # A landmark whose sightings over this window are mostly rejected (at least this many
+    # sightings, more than this fraction rejected) says the map is wrong.
+    disagreement_window_s: float = 2.0
+    disagreement_min_sightings: int = 10
+    disagreement_fraction: float = 0.5
+    disagreement_mean_nis: float = 6.0  # three times a 2-dimensional measurement's 2
+    # A landmark counts as expected (a miss is a verdict against the map) only well
+    # inside a scanner's field (±135°) and range.
+    in_view_half_angle_rad: float = math.radians(110.0)
+    in_view_min_range_m: float = 0.6
+    in_view_max_range_m: float = 12.0
 
 
 @dataclass(frozen=True)
@@ -149,6 +165,7 @@ class LauncherLocalizer:
         self._last_accept_s: float | None = None
         self._last_cylinder_s: float | None = None
         self._last_scan_s: dict[str, float] = {}
+        self._verdicts: dict[str, deque[tuple[float, bool, float]]] = {}
         self.init_reason = "no scan yet"
         self.last_features: dict[str, ScanFeatures] = {}
 
@@ -248,6 +265,9 @@ class LauncherLocalizer:
         self.feature_rejections.update(features.rejections)
         range_var = setup.systematic_range_sigma_m**2
         yaw_var = setup.systematic_yaw_sigma_rad**2
+        # Per landmark, this scan's best: one detection accepted is the landmark seen,
+        # whatever else near it (a post, a person) was kept out.
+        seen: dict[str, tuple[bool, float]] = {}
         for circle in features.circles:
             z, cov = _polar(circle, pose_in_of)
             r_cov = cov + np.diag([range_var, yaw_var])
@@ -256,8 +276,18 @@ class LauncherLocalizer:
                 key=lambda lm: self.ekf.innovation(z, r_cov, (lm.x_m, lm.y_m), pose_in_of),
             )
             outcome = self.ekf.update_cylinder(z, r_cov, (best.x_m, best.y_m), pose_in_of)
+            accepted, nis = seen.get(best.name, (False, math.inf))
+            seen[best.name] = (accepted or outcome.accepted, min(nis, outcome.nis))
             if outcome.accepted:
                 self._last_accept_s = self._last_cylinder_s = t_s
+        for landmark in p.launcher.cylinders:
+            if landmark.name not in seen and self._in_view(landmark, pose_in_of):
+                seen[landmark.name] = (False, math.nan)  # predicted in view, not found
+        for name, (accepted, nis) in seen.items():
+            verdicts = self._verdicts.setdefault(name, deque())
+            verdicts.append((t_s, accepted, nis))
+            while verdicts and t_s - verdicts[0][0] > p.disagreement_window_s:
+                verdicts.popleft()
         board = self._board_line(features.lines)
         if board is not None:
             z = np.array([board.r_m, board.alpha_rad])
@@ -294,6 +324,39 @@ class LauncherLocalizer:
         )
 
     # ---- what the rest of the vehicle reads ------------------------------------------
+    def _in_view(self, landmark: CylinderLandmark, sensor: Pose2D) -> bool:
+        """Whether the predicted landmark is well inside this scanner's field and range."""
+        z, _ = cylinder_measurement(self.ekf.state, (landmark.x_m, landmark.y_m), sensor)
+        p = self.params
+        return (
+            p.in_view_min_range_m <= float(z[0]) <= p.in_view_max_range_m
+            and abs(float(z[1])) <= p.in_view_half_angle_rad
+        )
+
+    def _disagreeing_landmarks(self) -> list[str]:
+        """Landmarks seen often and mostly rejected, or whose innovations are persistently
+        far larger than their covariance says (mean NIS against its expected 2): the map
+        is not the launcher, and a pose that fits the landmarks that agree with each other
+        proves nothing. One cylinder kept out now and then is a person walking past."""
+        p = self.params
+        found = []
+        for name, verdicts in sorted(self._verdicts.items()):
+            if len(verdicts) < p.disagreement_min_sightings:
+                continue
+            failed = [nis for _, accepted, nis in verdicts if not accepted]
+            nis = [value for _, _, value in verdicts if math.isfinite(value)]
+            mean_nis = sum(nis) / len(nis) if nis else 0.0
+            if len(failed) > p.disagreement_fraction * len(verdicts):
+                missed = sum(math.isnan(value) for value in failed)
+                found.append(
+                    f"{name} not seen where the map puts it"
+                    if missed > len(failed) / 2
+                    else f"{name} disagrees with the map"
+                )
+            elif mean_nis > p.disagreement_mean_nis:
+                found.append(f"{name} disagrees with the map")
+        return found
+
     def _silent_scanners(self, now_s: float) -> list[str]:
         limit = self.params.scanner_silent_after_s
         return [
@@ -321,6 +384,9 @@ class LauncherLocalizer:
         elif sigma_m > p.degraded_sigma_m or sigma_yaw > p.degraded_heading_sigma_rad:
             status = LocalizationStatus.DEGRADED
             reason = f"sigma {sigma_m * 1000:.0f} mm, {math.degrees(sigma_yaw):.2f} deg"
+        elif disagreeing := self._disagreeing_landmarks():
+            status = LocalizationStatus.DEGRADED
+            reason = "; ".join(disagreeing)
         elif silent := self._silent_scanners(now_s):
             status, reason = LocalizationStatus.DEGRADED, f"scanner {', '.join(silent)} silent"
         elif self._last_cylinder_s is None or (

@@ -168,7 +168,12 @@ def test_a_false_cylinder_or_a_person_beside_a_landmark_is_kept_out(
     if offset_m - radius_m < LocalizerParams().cylinder_roi_m:  # else outside every region
         assert kept_out(localizer) > kept_out(clear)
     assert max(errors[-50:]) < 0.005
-    assert statuses[-1] is LocalizationStatus.OK
+    if offset_m - radius_m < 0.4:
+        # so close that the landmark itself is no longer isolated: it is not used, and
+        # the estimate says so (the pose rests on the other cylinder and the board)
+        assert statuses[-1] is LocalizationStatus.DEGRADED
+    else:
+        assert statuses[-1] is LocalizationStatus.OK
 
 
 def test_a_scanner_that_goes_silent_degrades_the_estimate() -> None:
@@ -184,3 +189,23 @@ def test_a_stale_scan_is_never_used() -> None:
     assert localizer.stale_scans == 1
     assert localizer.last_features == {}
     assert localizer.estimate(0.5).status is LocalizationStatus.LOST
+
+
+def test_a_map_that_does_not_match_the_launcher_degrades_the_estimate() -> None:
+    """The map puts the left cylinder 0.3 m from where it stands: the filter rejects it
+    again and again (or is pulled by it), and the status must say so rather than `ok`."""
+    site = launcher_site(LauncherSpec(cylinder_lateral_m=2.5)).merged(yard_site(YardSpec(x_m=-8.0)))
+    params = LocalizerParams(features=THIN, launcher=LauncherMap(cylinder_lateral_m=2.8))
+    localizer = LauncherLocalizer({n: ScannerSetup(m) for n, m in MOUNTS.items()}, params)
+    rng = np.random.default_rng(5)
+    centre = _centre(6.0, 0.1, 0.5)
+    statuses = []
+    for k in range(150):
+        t_s = k * 0.02
+        name = "left" if k % 2 == 0 else "right"
+        ranges, _ = render_scan(site, t_s, centre, MOUNTS[name], rng=rng, errors=ideal_scanner())
+        localizer.update(name, ranges, SENSOR_ANGLES, t_s, t_s)
+        statuses.append(localizer.estimate(t_s))
+    last = statuses[-1]
+    assert last.status is not LocalizationStatus.OK, last
+    assert "cylinder_left not seen where the map puts it" in last.reason
