@@ -8,9 +8,10 @@ numpy, and nothing of the runtime (the import contracts in pyproject.toml say so
 
 The scan path, one module per step: ``points`` (polar beams to the output frame),
 ``segments`` (adaptive breakpoints), ``lines`` (split-and-merge) with ``line_fit`` (the
-weighted TLS line and its covariance), ``circles`` (circle fits and their covariance)
-with ``cylinders`` (when an arc is the landmark), and ``features`` (the whole scan, with
-regions of interest). ``types`` holds what comes out (`ScanFeatures`, `LineFeature`,
-`CircleFeature`, `FitRejection`) and what the fits assume of the scanner
-(`ScannerModel`); ``gates`` the χ² quantile the tests share.
+weighted TLS line and its covariance), ``circles`` (circle fits and their covariance,
+their least-squares search in ``circle_search``) with ``cylinders`` (when an arc is the
+landmark), and ``features`` (the whole scan, with regions of interest). ``types`` holds
+what comes out (`ScanFeatures`, `LineFeature`, `CircleFeature`, `FitRejection`) and what
+the fits assume of the scanner (`ScannerModel`); ``gates`` the χ² quantile the tests
+share.
 """

@@ -32,7 +32,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from appliance.perception.circles import fit_circle_free, fit_circle_known_radius
+from appliance.perception.circles import fit_circle_known_radius, free_radius_mismatch
 from appliance.perception.gates import chi_square_quantile
 from appliance.perception.points import ScanPoints
 from appliance.perception.types import (
@@ -89,22 +89,27 @@ class CircleParams:
 
 def _isolated(points: ScanPoints, start: int, stop: int, margin_m: float) -> bool:
     """The beams just outside [start, stop) see nothing, or see it clearly farther."""
+    valid, ranges = points.valid, points.ranges_m
     for beyond, edge in ((start - 1, start), (stop, stop - 1)):
         if not 0 <= beyond < points.count:
             return False  # the field of view's edge: what is beside the arc is unknown
-        if points.valid[beyond] and points.ranges_m[beyond] <= points.ranges_m[edge] + margin_m:
+        if valid[beyond] and ranges[beyond] <= ranges[edge] + margin_m:
             return False
     return True
 
 
-def _beam_step_rad(points: ScanPoints, start: int) -> float:
-    """The angle between two neighbouring beams (from their unit directions)."""
-    a, b = points.directions[start], points.directions[start + 1]
-    return abs(math.atan2(float(a[0] * b[1] - a[1] * b[0]), float(a @ b)))
+def _angle_between(a: list[float], b: list[float]) -> float:
+    """The unsigned angle between two unit vectors."""
+    return abs(math.atan2(a[0] * b[1] - a[1] * b[0], a[0] * b[0] + a[1] * b[1]))
 
 
 def _width_problem(
-    points: ScanPoints, start: int, stop: int, params: CircleParams, scanner: ScannerModel
+    points: ScanPoints,
+    start: int,
+    stop: int,
+    params: CircleParams,
+    scanner: ScannerModel,
+    beam_step_rad: float,
 ) -> FitRejection | None:
     """Whether the cluster subtends the angle the cylinder would, from where it is.
 
@@ -116,26 +121,28 @@ def _width_problem(
     footprint widens the arc by about ``footprint_widening`` of its own angular size; a
     scanner without one (the ideal model) is inside the tolerance.
     """
-    ranges = points.ranges_m[start:stop]
-    centre_m = float(np.min(ranges)) + params.radius_m
-    first, last = points.directions[start], points.directions[stop - 1]
-    span = abs(math.atan2(float(first[0] * last[1] - first[1] * last[0]), float(first @ last)))
+    centre_m = float(points.ranges_m[start:stop].min()) + params.radius_m
+    directions = points.directions
+    span = _angle_between(directions[start].tolist(), directions[stop - 1].tolist())
     expected = 2.0 * math.asin(min(1.0, params.radius_m / centre_m))
     footprint_rad = (
         scanner.footprint_exit_m + scanner.footprint_divergence_rad * centre_m
     ) / centre_m
     widened = expected + params.footprint_widening * footprint_rad
     allowed = (
-        _beam_step_rad(points, start)
+        beam_step_rad
         + params.footprint_widening_tolerance * footprint_rad
         + params.width_tolerance_m / centre_m
     )
-    across_m = 2.0 * centre_m * math.sin(0.5 * span)
     if span > widened + allowed:
-        return FitRejection(RejectReason.TOO_WIDE, f"{across_m:.3f} m across")
+        return FitRejection(RejectReason.TOO_WIDE, _across(centre_m, span))
     if span < widened - allowed:
-        return FitRejection(RejectReason.TOO_NARROW, f"{across_m:.3f} m across")
+        return FitRejection(RejectReason.TOO_NARROW, _across(centre_m, span))
     return None
+
+
+def _across(centre_m: float, span_rad: float) -> str:
+    return f"{2.0 * centre_m * math.sin(0.5 * span_rad):.3f} m across"
 
 
 def fit_cylinder(
@@ -148,15 +155,18 @@ def fit_cylinder(
     start, stop = segment
     if stop - start < max(params.min_points, 2):
         return FitRejection(RejectReason.TOO_FEW_POINTS, f"{stop - start} points")
-    problem = _width_problem(points, start, stop, params, scanner)
+    beam_step = _angle_between(
+        points.directions[start].tolist(), points.directions[start + 1].tolist()
+    )
+    problem = _width_problem(points, start, stop, params, scanner, beam_step)
     if problem is not None:
         return problem
     if not _isolated(points, start, stop, params.isolation_margin_m):
         return FitRejection(RejectReason.NOT_ISOLATED)
     first, last = start, stop
     if params.trim_footprint_edges:
-        range_m = float(np.mean(points.ranges_m[start:stop]))
-        reach = scanner.footprint_half_angle_rad(range_m) / max(_beam_step_rad(points, start), 1e-9)
+        range_m = float(np.add.reduce(points.ranges_m[start:stop])) / (stop - start)
+        reach = scanner.footprint_half_angle_rad(range_m) / max(beam_step, 1e-9)
         trim = min(math.ceil(reach), (stop - start - params.min_points) // 2)
         first, last = start + trim, stop - trim
     previous: tuple[float, float] | None = None
@@ -171,13 +181,13 @@ def fit_cylinder(
         )
         if isinstance(fit, FitRejection):
             return fit
-        ends = np.abs(fit.residuals_m[[0, -1]])
+        end_first, end_last = abs(float(fit.residuals_m[0])), abs(float(fit.residuals_m[-1]))
         if (
             last - first <= params.min_points
-            or ends.max() <= params.edge_trim_sigmas * scanner.sigma_m
+            or max(end_first, end_last) <= params.edge_trim_sigmas * scanner.sigma_m
         ):
             break
-        first, last = (first + 1, last) if ends[0] >= ends[1] else (first, last - 1)
+        first, last = (first + 1, last) if end_first >= end_last else (first, last - 1)
         previous = (fit.cx_m, fit.cy_m)
     allowed_rms = scanner.sigma_m * math.sqrt(
         chi_square_quantile(fit.n_points - 2, params.rms_gate_z) / fit.n_points
@@ -191,17 +201,17 @@ def fit_cylinder(
     if centre_range - arc_range < params.facing_fraction * params.radius_m:
         return FitRejection(RejectReason.NOT_FACING)
     if last - first >= params.radius_check_points:
-        free = fit_circle_free(
+        free_radius = free_radius_mismatch(
             used,
+            fit,
             points.origin_xy_m,
             scanner,
+            params.radius_tolerance_m,
+            3.0,
             params.max_iterations,
-            start=(fit.cx_m, fit.cy_m, params.radius_m),
         )
-        if not isinstance(free, FitRejection):
-            allowed = params.radius_tolerance_m + 3.0 * free.radius_sigma_m
-            if abs(free.radius_m - params.radius_m) > allowed:
-                return FitRejection(RejectReason.RADIUS_MISMATCH, f"radius {free.radius_m:.3f} m")
+        if free_radius is not None:
+            return FitRejection(RejectReason.RADIUS_MISMATCH, f"radius {free_radius:.3f} m")
     return CircleFeature(
         cx_m=fit.cx_m,
         cy_m=fit.cy_m,

@@ -53,8 +53,15 @@ class DiscRoi:
             raise ValueError(f"radius_m must be > 0, got {self.radius_m}")
 
     def contains(self, xy_m: FloatArray) -> BoolArray:
-        dx, dy = xy_m[:, 0] - self.cx_m, xy_m[:, 1] - self.cy_m
-        inside: BoolArray = dx * dx + dy * dy <= self.radius_m * self.radius_m
+        return self.contains_xy(xy_m[:, 0], xy_m[:, 1])
+
+    def contains_xy(self, x_m: FloatArray, y_m: FloatArray) -> BoolArray:
+        """`contains` of the points' coordinates as two arrays."""
+        dx, dy = x_m - self.cx_m, y_m - self.cy_m
+        dx *= dx
+        dy *= dy
+        dx += dy
+        inside: BoolArray = dx <= self.radius_m * self.radius_m
         return inside
 
 
@@ -74,13 +81,26 @@ class LineRoi:
             raise ValueError(f"half_width_m must be > 0, got {self.half_width_m}")
 
     def contains(self, xy_m: FloatArray) -> BoolArray:
+        return self.contains_xy(xy_m[:, 0], xy_m[:, 1])
+
+    def contains_xy(self, x_m: FloatArray, y_m: FloatArray) -> BoolArray:
+        """`contains` of the points' coordinates as two arrays."""
         ex, ey = self.x1_m - self.x0_m, self.y1_m - self.y0_m
         length_sq = ex * ex + ey * ey
-        px, py = xy_m[:, 0] - self.x0_m, xy_m[:, 1] - self.y0_m
-        along = (px * ex + py * ey) / length_sq if length_sq > 0.0 else np.zeros(len(px))
-        along = np.clip(along, 0.0, 1.0)
-        dx, dy = px - along * ex, py - along * ey
-        inside: BoolArray = dx * dx + dy * dy <= self.half_width_m * self.half_width_m
+        px, py = x_m - self.x0_m, y_m - self.y0_m
+        if length_sq > 0.0:
+            along = px * ex
+            along += py * ey
+            along /= length_sq
+            np.clip(along, 0.0, 1.0, out=along)
+        else:
+            along = np.zeros(len(px))
+        px -= along * ex
+        py -= along * ey
+        px *= px
+        py *= py
+        px += py
+        inside: BoolArray = px <= self.half_width_m * self.half_width_m
         return inside
 
 
@@ -103,9 +123,10 @@ _DEFAULTS = FeatureParams()
 def roi_mask(xy_m: FloatArray, rois: Sequence[Roi]) -> BoolArray:
     """Beams whose point lies in at least one region."""
     mask = np.zeros(xy_m.shape[0], dtype=np.bool_)
+    x_m, y_m = np.ascontiguousarray(xy_m[:, 0]), np.ascontiguousarray(xy_m[:, 1])
     with np.errstate(over="ignore", invalid="ignore"):  # a point at 1e300 m is in none
         for roi in rois:
-            mask |= roi.contains(xy_m)
+            mask |= roi.contains_xy(x_m, y_m)
     return mask
 
 

@@ -79,12 +79,17 @@ class RoughLine(NamedTuple):
 def line_from_sums(sums: FloatArray, shift: FloatArray) -> RoughLine | None:
     """The weighted TLS line from moment sums of points moved by ``-shift``; None when
     the points have no direction."""
-    total, sx, sy, sxx, syy, sxy = sums.tolist()
+    return line_from_list(sums.tolist(), float(shift[0]), float(shift[1]))
+
+
+def line_from_list(sums: list[float], shift_x: float, shift_y: float) -> RoughLine | None:
+    """`line_from_sums` of the sums as floats (1, x, y, x², y², xy) and the shift."""
+    total, sx, sy, sxx, syy, sxy = sums
     if not total > 0.0:
         return None
     mx, my = sx / total, sy / total
     cxx, cyy, cxy = sxx - total * mx * mx, syy - total * my * my, sxy - total * mx * my
-    px, py = mx + float(shift[0]), my + float(shift[1])
+    px, py = mx + shift_x, my + shift_y
     resolution = _RESOLUTION * max(abs(px), abs(py))  # spreads below this are rounding
     if not (cxx + cyy > total * resolution * resolution and math.isfinite(cxx + cyy + cxy)):
         return None
@@ -116,9 +121,8 @@ def _weights(
 ) -> FloatArray:
     if directions is None:
         return np.full(n, 1.0 / (scanner.sigma_m**2 + scanner.floor_sigma_m**2))
-    cos_incidence = directions @ np.array([math.cos(alpha), math.sin(alpha)])
-    weights: FloatArray = 1.0 / scanner.normal_variance(cos_incidence)
-    return weights
+    variance = scanner.normal_variance(directions @ np.array([math.cos(alpha), math.sin(alpha)]))
+    return np.divide(1.0, variance, out=variance)
 
 
 def fit_line(
@@ -139,58 +143,76 @@ def fit_line(
     if n < 2:
         return FitRejection(RejectReason.TOO_FEW_POINTS, f"{n} point(s)")
     with np.errstate(all="ignore"):
-        shift = xy_m.sum(axis=0) / n
-        if not math.isfinite(float(shift.sum())):  # a nan or inf, or a sum overflowed
+        shift = np.add.reduce(xy_m, axis=0) / n
+        shift_x, shift_y = shift.tolist()
+        if not math.isfinite(shift_x + shift_y):  # a nan or inf, or a sum overflowed
             return FitRejection(RejectReason.NON_FINITE)
         q = xy_m - shift
         moments = moment_columns(q)
         alpha = alpha_start_rad
         if alpha is None and directions is not None:
-            unweighted = line_from_sums(moments.sum(axis=0), shift)
+            unweighted = line_from_list(np.add.reduce(moments, axis=0).tolist(), shift_x, shift_y)
             alpha = None if unweighted is None else unweighted.alpha_rad
-        weights = _weights(directions, 0.0 if alpha is None else alpha, scanner, n)
-        previous: RoughLine | None = None
-        line: RoughLine | None = None
-        for _ in range(max(max_iterations, 1) if directions is not None else 1):
-            line = line_from_sums(weights @ moments, shift)
-            if line is None:
-                return FitRejection(RejectReason.DEGENERATE, "no direction in the points")
-            if directions is None:
-                break
-            if previous is not None:
-                change = max(
-                    abs(line.r_m - previous.r_m),
-                    abs(wrap_angle(line.alpha_rad - previous.alpha_rad)),
-                )
-                if change <= _IRLS_TOLERANCE * (1.0 + line.r_m):
-                    break  # the weights this line was fitted with are its own, to rounding
-            previous = line
-            weights = _weights(directions, line.alpha_rad, scanner, n)
+        return fit_line_moments(
+            q, moments, (shift_x, shift_y), directions, scanner, max_iterations, alpha
+        )
+
+
+def fit_line_moments(
+    q: FloatArray,
+    moments: FloatArray,
+    shift_xy_m: tuple[float, float],
+    directions: FloatArray | None,
+    scanner: ScannerModel,
+    max_iterations: int,
+    alpha_start_rad: float | None,
+) -> LineFit | FitRejection:
+    """`fit_line` of points given as their offsets ``q`` from ``shift_xy_m`` and their
+    `moment_columns` (a caller that has them for a whole cluster passes a piece's rows);
+    numpy's floating-point warnings are the caller's to silence."""
+    n = int(q.shape[0])
+    weights = _weights(directions, 0.0 if alpha_start_rad is None else alpha_start_rad, scanner, n)
+    previous: RoughLine | None = None
+    line: RoughLine | None = None
+    for _ in range(max(max_iterations, 1) if directions is not None else 1):
+        line = line_from_list((weights @ moments).tolist(), *shift_xy_m)
         if line is None:
             return FitRejection(RejectReason.DEGENERATE, "no direction in the points")
-        return _finish_line_fit(q, shift, line, weights)
+        if directions is None:
+            break
+        if previous is not None:
+            change = max(
+                abs(line.r_m - previous.r_m),
+                abs(wrap_angle(line.alpha_rad - previous.alpha_rad)),
+            )
+            if change <= _IRLS_TOLERANCE * (1.0 + line.r_m):
+                break  # the weights this line was fitted with are its own, to rounding
+        previous = line
+        weights = _weights(directions, line.alpha_rad, scanner, n)
+    if line is None:
+        return FitRejection(RejectReason.DEGENERATE, "no direction in the points")
+    return _finish_line_fit(q, *shift_xy_m, line, weights)
 
 
 def _finish_line_fit(
-    q: FloatArray, shift: FloatArray, line: RoughLine, weights: FloatArray
+    q: FloatArray, shift_x: float, shift_y: float, line: RoughLine, weights: FloatArray
 ) -> LineFit | FitRejection:
     """Covariance (derived in the module docstring) and residuals of a fitted line."""
     if not (line.spread > 0.0 and math.isfinite(line.spread)):
         return FitRejection(RejectReason.DEGENERATE, "no extent along the line")
     c, s = math.cos(line.alpha_rad), math.sin(line.alpha_rad)
-    residuals = q @ np.array([c, s]) - (line.r_m - float(shift[0]) * c - float(shift[1]) * s)
+    residuals = q @ np.array([c, s])
+    residuals -= line.r_m - shift_x * c - shift_y * s
     var_alpha = 1.0 / line.spread
     lever = line.along_m
-    covariance = np.array(
-        [
-            [1.0 / line.total + lever * lever * var_alpha, lever * var_alpha],
-            [lever * var_alpha, var_alpha],
-        ]
-    )
-    squares = residuals * residuals
-    rms = math.sqrt(float(squares.sum()) / q.shape[0])
+    var_r = 1.0 / line.total + lever * lever * var_alpha
+    cov_r_alpha = lever * var_alpha
+    squares = np.multiply(residuals, residuals, out=residuals)
+    rms = math.sqrt(float(np.add.reduce(squares)) / q.shape[0])
     worst = math.sqrt(float(squares.max()))
     chi_square = float(weights @ squares)
-    if not (np.isfinite(covariance).all() and math.isfinite(rms + chi_square + line.r_m)):
+    finite = math.isfinite(var_r) and math.isfinite(cov_r_alpha) and math.isfinite(var_alpha)
+    if not (finite and math.isfinite(rms + chi_square + line.r_m)):
         return FitRejection(RejectReason.NON_FINITE, "the fit overflowed")
+    covariance = np.array([[var_r, cov_r_alpha], [cov_r_alpha, var_alpha]])
     return LineFit(line.r_m, line.alpha_rad, covariance, rms, worst, int(q.shape[0]), chi_square)

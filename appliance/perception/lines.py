@@ -40,8 +40,8 @@ from appliance.perception.gates import chi_square_quantile
 from appliance.perception.line_fit import (
     LineFit,
     RoughLine,
-    fit_line,
-    line_from_sums,
+    fit_line_moments,
+    line_from_list,
     moment_columns,
 )
 from appliance.perception.points import ScanPoints
@@ -93,18 +93,23 @@ def split_breakpoints(xy_m: FloatArray, split_distance_m: float) -> list[int]:
         return []
     breaks = {0, n - 1}
     pending = [(0, n - 1)]
+    xs, ys = np.ascontiguousarray(xy_m[:, 0]), np.ascontiguousarray(xy_m[:, 1])
     while pending:
         i, j = pending.pop()
         if j - i < 2:
             continue
-        chord = xy_m[j] - xy_m[i]
-        length = math.hypot(float(chord[0]), float(chord[1]))
-        inner = xy_m[i + 1 : j] - xy_m[i]
+        xi, yi = float(xs[i]), float(ys[i])
+        chord_x, chord_y = float(xs[j]) - xi, float(ys[j]) - yi
+        length = math.hypot(chord_x, chord_y)
+        inner_x, inner_y = xs[i + 1 : j] - xi, ys[i + 1 : j] - yi
         if length > 0.0:
-            distance = np.abs(inner[:, 0] * chord[1] - inner[:, 1] * chord[0]) / length
+            distance = inner_x * chord_y
+            distance -= inner_y * chord_x
+            np.abs(distance, out=distance)
+            distance /= length
         else:
-            distance = np.hypot(inner[:, 0], inner[:, 1])
-        k = int(np.argmax(distance))
+            distance = np.hypot(inner_x, inner_y)
+        k = int(distance.argmax())
         if distance[k] > split_distance_m:
             m = i + 1 + k
             breaks.add(m)
@@ -122,6 +127,16 @@ def _pieces(breaks: list[int]) -> list[tuple[int, int]]:
     return [(a, b) for a, b in pieces if b >= a]
 
 
+def _rows(array: FloatArray, indices: IndexArray) -> FloatArray:
+    """``array[indices]``, as a view when the indices are a run (the usual piece): the
+    same rows in the same order, so every sum over them is the same to the last bit."""
+    first, last = int(indices[0]), int(indices[-1])
+    rows: FloatArray = (
+        array[first : last + 1] if last - first + 1 == indices.shape[0] else array[indices]
+    )
+    return rows
+
+
 _Candidate = tuple[float, tuple[IndexArray, RoughLine]]  # (χ² / gate, merged piece)
 
 
@@ -131,19 +146,23 @@ class _Cluster:
 
     def __init__(self, xy_m: FloatArray, scanner: ScannerModel) -> None:
         self.shift = xy_m.sum(axis=0) / max(xy_m.shape[0], 1)
+        self.shift_xy = (float(self.shift[0]), float(self.shift[1]))
         self.q = xy_m - self.shift
         self.moments = moment_columns(self.q)
         self.weight = 1.0 / (scanner.sigma_m**2 + scanner.floor_sigma_m**2)
 
     def line(self, indices: IndexArray) -> RoughLine | None:
-        return line_from_sums(self.weight * self.moments[indices].sum(axis=0), self.shift)
+        sums = np.add.reduce(_rows(self.moments, indices), axis=0).tolist()
+        return line_from_list([self.weight * v for v in sums], *self.shift_xy)
 
-    def residuals(self, indices: IndexArray, line: RoughLine) -> FloatArray:
-        """Each point's distance from the line."""
+    def farthest(self, indices: IndexArray, line: RoughLine) -> float:
+        """The largest distance of the points from the line, from the extremes of their
+        projections on its normal (a difference of floats is monotonic in each, so this
+        is the largest of the rounded distances, to the last bit)."""
         c, s = math.cos(line.alpha_rad), math.sin(line.alpha_rad)
-        offset = line.r_m - float(self.shift[0]) * c - float(self.shift[1]) * s
-        distance: FloatArray = np.abs(self.q[indices] @ np.array([c, s]) - offset)
-        return distance
+        offset = line.r_m - self.shift_xy[0] * c - self.shift_xy[1] * s
+        along = _rows(self.q, indices) @ np.array([c, s])
+        return max(float(along.max()) - offset, offset - float(along.min()))
 
 
 def split_and_merge(
@@ -170,21 +189,27 @@ def _split_and_merge(
     debris = 0
     for a, b in _pieces(split_breakpoints(xy_m, params.split_distance_m)):
         indices = np.arange(a, b + 1)
-        line = cluster.line(indices) if indices.size >= params.min_points else None
+        line = cluster.line(indices) if indices.shape[0] >= params.min_points else None
         if line is None:
             debris += 1
         else:
             pieces.append((indices, line))
+    if len(pieces) < 2:
+        return pieces, debris
 
     def candidate(k: int) -> _Candidate | None:
         """Pieces k and k+1 merged, if the merged line passes both tests, with its χ²
         as a fraction of the gate (the smaller, the better the pair)."""
-        union = np.concatenate([pieces[k][0], pieces[k + 1][0]])
+        union = np.concatenate((pieces[k][0], pieces[k + 1][0]))
         merged = cluster.line(union)
-        if merged is None or cluster.residuals(union, merged).max() > params.split_distance_m:
+        if merged is None:
             return None
-        gate = chi_square_quantile(union.size - 2, params.merge_gate_z)
-        return (merged.chi_square / gate, (union, merged)) if merged.chi_square <= gate else None
+        gate = chi_square_quantile(union.shape[0] - 2, params.merge_gate_z)
+        if not merged.chi_square <= gate:
+            return None
+        if cluster.farthest(union, merged) > params.split_distance_m:
+            return None
+        return merged.chi_square / gate, (union, merged)
 
     candidates = [candidate(k) for k in range(len(pieces) - 1)]
     while True:
@@ -219,24 +244,40 @@ def _settle_corner(
     point farther than the split distance from its line stays out.
     """
     lowest = params.min_points
-    union = np.arange(before[0][0], after[0][-1] + 1)
-    if union.size < 2 * lowest:
+    begin, end = int(before[0][0]), int(after[0][-1]) + 1
+    size = end - begin
+    if size < 2 * lowest:
         return [before, after]
-    residuals = [cluster.residuals(union, line) for _, line in (before, after)]
-    # cost[k]: the first k points to the first line, the rest to the second.
-    cost = np.concatenate(([0.0], np.cumsum(residuals[0] ** 2)))
-    cost += np.concatenate((np.cumsum(residuals[1][::-1] ** 2)[::-1], [0.0]))
-    boundary = lowest + int(np.argmin(cost[lowest : union.size - lowest + 1]))
-    first = union[:boundary][residuals[0][:boundary] <= params.split_distance_m]
-    second = union[boundary:][residuals[1][boundary:] <= params.split_distance_m]
-    if np.array_equal(first, before[0]) and np.array_equal(second, after[0]):
+    # Both lines' distances of every point from the first line's start to the second's end.
+    residuals = np.empty((2, size))
+    offsets = []
+    for row, (_, line) in zip(residuals, (before, after), strict=True):
+        c, s = math.cos(line.alpha_rad), math.sin(line.alpha_rad)
+        np.matmul(cluster.q[begin:end], np.array([c, s]), out=row)
+        offsets.append([line.r_m - cluster.shift_xy[0] * c - cluster.shift_xy[1] * s])
+    residuals -= offsets
+    np.abs(residuals, out=residuals)
+    squares = residuals * residuals
+    # cost[k]: the first k points to the first line, the rest to the second (k >= lowest).
+    head = np.cumsum(squares[0])
+    tail = np.cumsum(squares[1, ::-1])[::-1]
+    cost = head[lowest - 1 : size - lowest] + tail[lowest : size - lowest + 1]
+    boundary = lowest + int(cost.argmin())
+    union = np.arange(begin, end)
+    first = union[:boundary][residuals[0, :boundary] <= params.split_distance_m]
+    second = union[boundary:][residuals[1, boundary:] <= params.split_distance_m]
+    if _same(first, before[0]) and _same(second, after[0]):
         return [before, after]
-    if min(first.size, second.size) < lowest:
+    if min(first.shape[0], second.shape[0]) < lowest:
         return [before, after]
     first_line, second_line = cluster.line(first), cluster.line(second)
     if first_line is None or second_line is None:
         return [before, after]
     return [(first, first_line), (second, second_line)]
+
+
+def _same(a: IndexArray, b: IndexArray) -> bool:
+    return a.shape == b.shape and bool((a == b).all())
 
 
 def _line_range_m(fit: LineFit, origin: tuple[float, float], direction: FloatArray) -> float:
@@ -287,35 +328,50 @@ def extract_lines(
     directions = points.directions[start:stop]
     if stop - start < params.min_points:
         return [FitRejection(RejectReason.TOO_FEW_POINTS, f"{stop - start} points")]
-    pieces, debris = split_and_merge(xy, params, scanner)
+    with np.errstate(all="ignore"):
+        cluster = _Cluster(xy, scanner)
+        if not np.isfinite(cluster.moments).all():
+            return []
+        pieces, debris = _split_and_merge(cluster, xy, params)
     results: list[LineFeature | FitRejection] = [
         FitRejection(RejectReason.TOO_FEW_POINTS, "split debris") for _ in range(debris)
     ]
+    shortest_chord_m = params.min_length_m - params.split_distance_m
     for indices, rough in pieces:
-        ends = xy[[int(indices[0]), int(indices[-1])]]
-        if float(np.hypot(*(ends[1] - ends[0]))) < params.min_length_m - params.split_distance_m:
+        first, last = start + int(indices[0]), start + int(indices[-1])
+        (x0, y0), (x1, y1) = points.xy_m[first].tolist(), points.xy_m[last].tolist()
+        if math.hypot(x1 - x0, y1 - y0) < shortest_chord_m:
             results.append(FitRejection(RejectReason.TOO_SHORT, "well short"))
             continue
-        fit = fit_line(
-            xy[indices], directions[indices], scanner, params.max_iterations, rough.alpha_rad
-        )
+        with np.errstate(all="ignore"):  # the cluster's moments serve every piece
+            fit = fit_line_moments(
+                _rows(cluster.q, indices),
+                _rows(cluster.moments, indices),
+                cluster.shift_xy,
+                _rows(directions, indices),
+                scanner,
+                params.max_iterations,
+                rough.alpha_rad,
+            )
         if isinstance(fit, FitRejection):
             results.append(fit)
             continue
-        normal = np.array([math.cos(fit.alpha_rad), math.sin(fit.alpha_rad)])
-        projected = ends - np.outer(ends @ normal - fit.r_m, normal)
-        length = float(np.hypot(*(projected[1] - projected[0])))
+        # The ends projected onto the line.
+        c, s = math.cos(fit.alpha_rad), math.sin(fit.alpha_rad)
+        off0, off1 = x0 * c + y0 * s - fit.r_m, x1 * c + y1 * s - fit.r_m
+        start_xy = (x0 - off0 * c, y0 - off0 * s)
+        end_xy = (x1 - off1 * c, y1 - off1 * s)
+        length = math.hypot(end_xy[0] - start_xy[0], end_xy[1] - start_xy[1])
         if length < params.min_length_m:
             results.append(FitRejection(RejectReason.TOO_SHORT, f"{length:.3f} m"))
             continue
-        first, last = start + int(indices[0]), start + int(indices[-1])
         results.append(
             LineFeature(
                 r_m=fit.r_m,
                 alpha_rad=fit.alpha_rad,
                 covariance=fit.covariance,
-                start_xy_m=(float(projected[0, 0]), float(projected[0, 1])),
-                end_xy_m=(float(projected[1, 0]), float(projected[1, 1])),
+                start_xy_m=start_xy,
+                end_xy_m=end_xy,
                 start_occluded=end_occluded(
                     points, segment, first, -1, fit, params.occlusion_margin_m
                 ),

@@ -15,6 +15,7 @@ NaN that would poison a sum.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -32,7 +33,9 @@ class ScanPoints:
 
     ``ranges_m`` are the measured ranges minus the calibrated offset (0 where invalid);
     ``directions`` are the unit beam directions in the output frame, which the fits
-    need because the range error of a point lies along its beam.
+    need because the range error of a point lies along its beam (with or without an
+    echo; along the frame's yaw where the angle is not finite). Arrays may be shared
+    between scans of one scanner: they are all read-only.
     """
 
     xy_m: FloatArray  # (N, 2)
@@ -81,11 +84,26 @@ def scan_points(
         corrected = np.where(valid, ranges - range_offset_m, 0.0)
         valid &= corrected > 0.0  # also drops a non-finite offset's nan
     corrected = np.where(valid, corrected, 0.0)
-    world_angles = np.where(valid, angles, 0.0) + frame.yaw_rad
-    directions = np.empty((ranges.shape[0], 2), dtype=np.float64)
-    directions[:, 0] = np.cos(world_angles)
-    directions[:, 1] = np.sin(world_angles)
-    xy = corrected[:, np.newaxis] * directions
-    xy[:, 0] += frame.x_m
-    xy[:, 1] += frame.y_m
+    directions, cos, sin = _beam_directions(angles.tobytes(), float(frame.yaw_rad))
+    xy = np.empty((ranges.shape[0], 2), dtype=np.float64)
+    np.multiply(corrected, cos, out=xy[:, 0])
+    np.multiply(corrected, sin, out=xy[:, 1])
+    xy += np.array([frame.x_m, frame.y_m])
     return ScanPoints(xy, corrected, directions, valid, (float(frame.x_m), float(frame.y_m)))
+
+
+@functools.lru_cache(maxsize=8)
+def _beam_directions(angles: bytes, yaw_rad: float) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """The unit directions of the beams at ``angles`` (float64 bytes) turned by the
+    frame's yaw, as rows and as two contiguous columns; a beam whose angle is not finite
+    looks along the yaw. A scanner's angles and mount are the same scan after scan, and
+    these cosines and sines are a fair part of a whole scan's arithmetic: computed once,
+    shared read-only."""
+    beam_angles = np.frombuffer(angles, dtype=np.float64)
+    with np.errstate(invalid="ignore"):
+        world = np.where(np.isfinite(beam_angles), beam_angles, 0.0) + yaw_rad
+    cos, sin = np.cos(world), np.sin(world)
+    directions = np.column_stack((cos, sin))
+    for array in (directions, cos, sin):
+        array.flags.writeable = False
+    return directions, cos, sin

@@ -23,6 +23,7 @@ looped over by the caller.
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -99,27 +100,36 @@ def segment_scan(
     count = int(valid.shape[0])
     if count == 0:
         return Segmentation((), {})
-    gaps = np.hypot(np.diff(xy_m[:, 0]), np.diff(xy_m[:, 1]))
-    limits = breakpoint_distance_m(
-        ranges_m[:-1], np.diff(angles_rad), params.lambda_rad, scanner.sigma_m
-    )
-    with np.errstate(invalid="ignore"):
+    with np.errstate(over="ignore", invalid="ignore"):
+        step = xy_m[1:] - xy_m[:-1]
+        squared = step * step
+        gaps = np.sqrt(squared[:, 0] + squared[:, 1])
+        if count > 1 and not gaps.max() < math.inf:  # beyond 1e154 m: hypot's care
+            gaps = np.hypot(step[:, 0], step[:, 1])
+        step_sine, remaining_sine = _step_sines(
+            np.asarray(angles_rad, dtype=np.float64).tobytes(), params.lambda_rad
+        )
+        limits = ranges_m[:-1] * step_sine
+        limits /= remaining_sine
+        limits += 3.0 * scanner.sigma_m
         joined = valid[:-1] & valid[1:] & (gaps <= limits)
     # A cluster starts at every valid beam not joined to its predecessor.
+    apart = ~joined
     starts_flag = valid.copy()
-    starts_flag[1:] &= ~joined
+    starts_flag[1:] &= apart
     ends_flag = valid.copy()
-    ends_flag[:-1] &= ~joined
+    ends_flag[:-1] &= apart
     starts = np.flatnonzero(starts_flag)
     stops = np.flatnonzero(ends_flag) + 1
     sizes = stops - starts
     # Mean spacing per cluster from a running sum of the joined gaps.
-    travelled = np.concatenate(([0.0], np.cumsum(np.where(joined, gaps, 0.0))))
+    travelled = np.zeros(count)
+    np.cumsum(np.where(joined, gaps, 0.0), out=travelled[1:])
     with np.errstate(invalid="ignore", divide="ignore"):
         mean_spacing = (travelled[stops - 1] - travelled[starts]) / np.maximum(sizes - 1, 1)
     too_few = sizes < params.min_points
     dispersed = ~too_few & ~(mean_spacing <= params.max_mean_spacing_m)
-    keep = ~too_few & ~dispersed
+    keep = ~(too_few | dispersed)
     rejections = {
         f"segment.{reason}": n
         for reason, n in (
@@ -128,5 +138,18 @@ def segment_scan(
         )
         if n
     }
-    segments = tuple((int(a), int(b)) for a, b in zip(starts[keep], stops[keep], strict=True))
-    return Segmentation(segments, rejections)
+    kept = zip(starts[keep].tolist(), stops[keep].tolist(), strict=True)
+    return Segmentation(tuple(kept), rejections)
+
+
+@functools.lru_cache(maxsize=8)
+def _step_sines(angles: bytes, lambda_rad: float) -> tuple[FloatArray, FloatArray]:
+    """``sin Δφ`` and ``sin(λ − Δφ)`` of `breakpoint_distance_m` for the beams at
+    ``angles`` (float64 bytes): a scanner's angles are the same scan after scan."""
+    delta = np.diff(np.frombuffer(angles, dtype=np.float64))
+    with np.errstate(invalid="ignore"):
+        step = np.minimum(np.abs(delta), 0.999 * lambda_rad)
+        sines = np.sin(step), np.sin(lambda_rad - step)
+    for sine in sines:
+        sine.flags.writeable = False
+    return sines

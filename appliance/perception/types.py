@@ -186,9 +186,13 @@ class ScannerModel:
     def normal_variance(self, cos_incidence: FloatArray) -> FloatArray:
         """Variance of each point's offset along a surface normal, given the cosine
         between its beam and that normal: range noise projects by the cosine."""
-        variance: FloatArray = (self.sigma_m * cos_incidence) ** 2 + self.floor_sigma_m**2
+        variance: FloatArray = np.multiply(self.sigma_m, cos_incidence)
+        variance *= variance
+        variance += self.floor_sigma_m**2
         # Never exactly 0 (no floor and a beam along the surface): weights stay finite.
-        return np.maximum(variance, (1e-3 * self.sigma_m) ** 2)
+        # (With a floor above that minimum, every variance is above it already.)
+        lowest = (1e-3 * self.sigma_m) ** 2
+        return variance if self.floor_sigma_m**2 >= lowest else np.maximum(variance, lowest)
 
     def footprint_half_angle_rad(self, range_m: float) -> float:
         """Half the angle the beam's footprint subtends from the scanner at ``range_m``."""

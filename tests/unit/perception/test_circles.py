@@ -16,6 +16,7 @@ from appliance.perception.circles import (
     CircleFit,
     fit_circle_free,
     fit_circle_known_radius,
+    free_radius_mismatch,
     taubin_circle,
 )
 from appliance.perception.points import scan_points
@@ -188,3 +189,41 @@ def test_coincident_points_are_rejected_or_fitted_finitely(n: int, x: float, y: 
     assert isinstance(taubin_circle(xy), FitRejection)
     result = fit_circle_known_radius(xy, 0.15, (0.0, 0.0), SCANNER)
     assert isinstance(result, FitRejection) or np.isfinite(result.covariance).all()
+
+
+def _radius_mismatch_reference(
+    xy: np.ndarray, known: CircleFit, tolerance_m: float, sigmas: float
+) -> float | None:
+    """The radius check as it was written first: the free fit to convergence, then the
+    comparison with its σ."""
+    free = fit_circle_free(xy, (0.0, 0.0), SCANNER, start=(known.cx_m, known.cy_m, 0.15))
+    if isinstance(free, FitRejection):
+        return None
+    allowed = tolerance_m + sigmas * free.radius_sigma_m
+    return free.radius_m if abs(free.radius_m - 0.15) > allowed else None
+
+
+@pytest.mark.parametrize("seed", range(12))
+def test_the_radius_check_decides_as_the_full_free_fit(seed: int) -> None:
+    """`free_radius_mismatch` settles most arcs before the free fit converges; its answer
+    is the full fit's on arcs of the landmark, of posts thinner and thicker, near and far,
+    short and long, noisy, with an outlier."""
+    rng = np.random.default_rng(100 + seed)
+    outcomes = set()
+    for _ in range(40):
+        radius = float(rng.choice([0.15, 0.15, 0.1, 0.13, 0.17, 0.2, 0.3]))
+        bearing, distance = rng.uniform(-2.0, 2.0), rng.uniform(0.7, 15.0)
+        centre = distance * np.array([math.cos(bearing), math.sin(bearing)])
+        half_span = rng.uniform(0.3, 1.4)
+        phi = math.pi + bearing + np.linspace(-half_span, half_span, int(rng.integers(8, 70)))
+        xy = centre + radius * np.column_stack([np.cos(phi), np.sin(phi)])
+        xy += rng.normal(0.0, float(rng.choice([0.003, 0.012, 0.03])), xy.shape)
+        if rng.random() < 0.2:
+            xy[rng.integers(0, len(xy))] += rng.normal(0.0, 0.1, 2)
+        known = fit_circle_known_radius(xy, 0.15, (0.0, 0.0), SCANNER)
+        if isinstance(known, FitRejection):
+            continue
+        expected = _radius_mismatch_reference(xy, known, 0.02, 3.0)
+        assert free_radius_mismatch(xy, known, (0.0, 0.0), SCANNER, 0.02, 3.0) == expected
+        outcomes.add(expected is None)
+    assert outcomes == {True, False}  # both answers were asked for

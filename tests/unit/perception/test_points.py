@@ -65,6 +65,26 @@ def test_beams_without_echo_are_invalid_and_never_nan() -> None:
     assert (points.ranges_m[~points.valid] == 0.0).all()
 
 
+def test_every_beam_keeps_its_direction_echo_or_not() -> None:
+    """A beam without an echo still looks where it looks; one without an angle looks
+    along the frame's yaw (a finite placeholder). Scans of one scanner share the
+    directions (computed once), so a second frame must not see the first one's."""
+    angles = [0.1, 0.2, math.nan, 0.4]
+    for yaw in (0.5, -1.0):
+        points = scan_points([2.0, 0.0, 3.0, math.inf], angles, Pose2D(1.0, 2.0, yaw))
+        expected = [a + yaw if math.isfinite(a) else yaw for a in angles]
+        np.testing.assert_array_equal(
+            points.directions, np.column_stack([np.cos(expected), np.sin(expected)])
+        )
+        frame = Pose2D(1.0, 2.0, yaw)
+        assert points.xy_m[0] == pytest.approx(
+            frame.apply(2.0 * math.cos(0.1), 2.0 * math.sin(0.1))
+        )
+        assert points.xy_m[1:].tolist() == [[1.0, 2.0]] * 3
+        with pytest.raises(ValueError, match="read-only"):
+            points.directions[0, 0] = 2.0
+
+
 def test_mismatched_arrays_are_a_callers_bug() -> None:
     with pytest.raises(ValueError, match="1-D of one length"):
         scan_points([1.0, 2.0], [0.0])
