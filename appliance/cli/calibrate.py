@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING, Any, NoReturn
 
 import click
 
-from appliance.cli.common import CONFIG_OPTION, EXIT_CONFIG_ERROR, load_or_exit
+from appliance.cli.common import CONFIG_OPTION, EXIT_CONFIG_ERROR, draw_png, load_or_exit
 
 if TYPE_CHECKING:
     import numpy as np
@@ -381,20 +381,7 @@ def _draw_or_say_why(
     launcher: LauncherMap,
 ) -> str | None:
     """Draw the PNG, or say why not (None when drawn): a picture is never worth exit 2."""
-    try:
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-    except ImportError:
-        return "not drawn: matplotlib is not installed"
-    try:
-        figure = _draw(plt, recordings, results, mounts, docked, launcher)
-        figure.savefig(path, dpi=120)
-        plt.close(figure)
-    except (OSError, ValueError) as exc:
-        return f"not drawn: {exc}"
-    return None
+    return draw_png(path, lambda plt: _draw(plt, recordings, results, mounts, docked, launcher))
 
 
 def _draw(

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import sys
+from typing import Any
 
 import click
 
@@ -27,3 +28,22 @@ def load_or_exit(name_or_path: str | None) -> VehicleConfig:
     except ConfigError as exc:
         click.echo(exc.render(), err=True)
         sys.exit(EXIT_CONFIG_ERROR)
+
+
+def draw_png(path: str, draw: Any) -> str | None:
+    """``draw(plt) -> figure``, saved as a PNG; None when drawn, else why not (a picture
+    is never worth exit 2)."""
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        return "not drawn: matplotlib is not installed"
+    try:
+        figure = draw(plt)
+        figure.savefig(path, dpi=120)
+        plt.close(figure)
+    except (OSError, ValueError) as exc:
+        return f"not drawn: {exc}"
+    return None

@@ -24,7 +24,7 @@ from typing import TYPE_CHECKING, Any, NoReturn
 
 import click
 
-from appliance.cli.common import CONFIG_OPTION, EXIT_CONFIG_ERROR, load_or_exit
+from appliance.cli.common import CONFIG_OPTION, EXIT_CONFIG_ERROR, draw_png, load_or_exit
 
 if TYPE_CHECKING:
     import numpy as np
@@ -350,25 +350,6 @@ def _summary_text(summary: dict[str, Any]) -> str:
 
 
 # ---- drawing -------------------------------------------------------------------------
-def draw_png(path: str, draw: Any) -> str | None:
-    """``draw(plt) -> figure``, saved as a PNG; None when drawn, else why not (a picture
-    is never worth exit 2)."""
-    try:
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-    except ImportError:
-        return "not drawn: matplotlib is not installed"
-    try:
-        figure = draw(plt)
-        figure.savefig(path, dpi=120)
-        plt.close(figure)
-    except (OSError, ValueError) as exc:
-        return f"not drawn: {exc}"
-    return None
-
-
 def _draw(
     plt: Any,
     scan: Scan,

@@ -26,12 +26,11 @@ from typing import TYPE_CHECKING, Any
 
 import click
 
-from appliance.cli.common import CONFIG_OPTION, load_or_exit
+from appliance.cli.common import CONFIG_OPTION, draw_png, load_or_exit
 from appliance.cli.features import (
     EXIT_TRUNCATED,
     SCANNERS,
     bad_input,
-    draw_png,
     load_calibration_or_exit,
     pose_json,
     read_recording_or_exit,

@@ -208,12 +208,8 @@ def iter_recording(path: str | Path) -> Iterator[Scan | ReplayError]:
                 yield event.scan
 
 
-def scan_summary(scan: Scan) -> dict[str, Any]:
-    """One scan as plain JSON-able values (``dbw lms111 decode --json``, one per line)."""
-    ranges = scan.ranges_m
-    valid = ranges[ranges > 0]
-    intensities = scan.intensities
-    angles = scan.angles_rad
+def _scan_identity(scan: Scan) -> dict[str, Any]:
+    """When and from which device a scan came: the fields every JSON view of it starts with."""
     return {
         "host_receive_time_s": scan.host_receive_time_s,
         "serial_number": scan.serial_number,
@@ -223,6 +219,17 @@ def scan_summary(scan: Scan) -> dict[str, Any]:
         "transmit_time_us": scan.transmit_time_us,
         "device_status": scan.device_status,
         "scan_frequency_hz": scan.scan_frequency_hz,
+    }
+
+
+def scan_summary(scan: Scan) -> dict[str, Any]:
+    """One scan as plain JSON-able values (``dbw lms111 decode --json``, one per line)."""
+    ranges = scan.ranges_m
+    valid = ranges[ranges > 0]
+    intensities = scan.intensities
+    angles = scan.angles_rad
+    return {
+        **_scan_identity(scan),
         "beams": len(ranges),
         "valid_beams": len(valid),
         "start_angle_deg": round(float(np.degrees(angles[0])), 4) if len(angles) else None,
@@ -433,14 +440,7 @@ def scan_export(scan: Scan, index: int) -> dict[str, Any]:
     device_deg, sensor_rad, ranges, intensities = _beams(scan)
     return {
         "scan_index": index,
-        "host_receive_time_s": scan.host_receive_time_s,
-        "serial_number": scan.serial_number,
-        "scan_counter": scan.scan_counter,
-        "telegram_counter": scan.telegram_counter,
-        "device_time_us": scan.device_time_us,
-        "transmit_time_us": scan.transmit_time_us,
-        "device_status": scan.device_status,
-        "scan_frequency_hz": scan.scan_frequency_hz,
+        **_scan_identity(scan),
         "beams": len(ranges),
         "device_angle_deg": device_deg,
         "sensor_angle_rad": sensor_rad,
