@@ -17,7 +17,7 @@ from __future__ import annotations
 import math
 from collections import Counter, deque
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from enum import StrEnum
 
 import numpy as np
@@ -152,6 +152,7 @@ class LauncherLocalizer:
             )
             for name, s in scanners.items()
         }
+        self._initial = self._initial_params()
         self.ekf = LauncherEkf(self.params.ekf)
         self.motion = BoardMotion(self.params.board_motion)
         self.reset()
@@ -206,7 +207,7 @@ class LauncherLocalizer:
         if len(fresh) < len(self.scanners):
             self.init_reason = "waiting for every scanner"
             return
-        found = initial_pose(fresh, self.sensors, p.launcher, self._initial_params())
+        found = initial_pose(fresh, self.sensors, p.launcher, self._initial)
         if not isinstance(found, InitialPose):
             self.init_reason = found.reason
             return
@@ -215,15 +216,15 @@ class LauncherLocalizer:
         self.init_reason = ""
 
     def _initial_params(self) -> InitialPoseParams:
-        worst_range = max(s.systematic_range_sigma_m for s in self.scanners.values())
-        worst_yaw = max(s.systematic_yaw_sigma_rad for s in self.scanners.values())
-        base = self.params.initial
-        return InitialPoseParams(
-            **{
-                **base.__dict__,
-                "systematic_range_sigma_m": worst_range,
-                "systematic_yaw_sigma_rad": worst_yaw,
-            }
+        """The first pose's parameters with the worst scanner's systematic error."""
+        return replace(
+            self.params.initial,
+            systematic_range_sigma_m=max(
+                s.systematic_range_sigma_m for s in self.scanners.values()
+            ),
+            systematic_yaw_sigma_rad=max(
+                s.systematic_yaw_sigma_rad for s in self.scanners.values()
+            ),
         )
 
     # ---- with a pose -----------------------------------------------------------------
