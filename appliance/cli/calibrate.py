@@ -29,10 +29,8 @@ if TYPE_CHECKING:
     import numpy.typing as npt
 
     from appliance.localization.launcher_map import LauncherMap
-    from appliance.localization.scanner_calibration import (
-        DockedPose,
-        ScannerCalibrationResult,
-    )
+    from appliance.localization.scanner_calibration_params import DockedPose
+    from appliance.localization.scanner_calibration_verdict import ScannerCalibrationResult
     from drivers.geometry import Pose2D
 
 EXIT_ACCEPTED = 0
@@ -156,7 +154,8 @@ def scanners(
     """
     from appliance.config.calibration_file import CalibrationError, read_calibration_file
     from appliance.localization.launcher_map import LauncherMap
-    from appliance.localization.scanner_calibration import DockedPose, calibrate_scanner
+    from appliance.localization.scanner_calibration import calibrate_scanner
+    from appliance.localization.scanner_calibration_params import DockedPose
     from drivers.geometry import Pose2D
     from drivers.lms111.mounted import mount_pose
 

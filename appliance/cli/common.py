@@ -1,9 +1,10 @@
-"""What every command group shares: how a vehicle is named, and how a bad one ends the command."""
+"""What every command group shares: how a vehicle is named, and how a bad one (or any bad
+input) ends the command."""
 
 from __future__ import annotations
 
 import sys
-from typing import Any
+from typing import Any, NoReturn
 
 import click
 
@@ -28,6 +29,12 @@ def load_or_exit(name_or_path: str | None) -> VehicleConfig:
     except ConfigError as exc:
         click.echo(exc.render(), err=True)
         sys.exit(EXIT_CONFIG_ERROR)
+
+
+def bad_input(message: str) -> NoReturn:
+    """One line on stderr, exit status 2: input the person can fix, so no traceback."""
+    click.echo(f"error: {message}", err=True)
+    sys.exit(EXIT_CONFIG_ERROR)
 
 
 def draw_png(path: str, draw: Any) -> str | None:

@@ -6,12 +6,9 @@ cylinders by arc fitting), on the whole scan, in the vehicle frame through the s
 mount (the calibrated one with ``--calibration``). Per scan: the segments, the lines
 (Hessian r and α, length, ends and whether each end is occluded, σ's), the cylinders
 (centre, σ, points) and what was rejected and why. ``--png`` draws one scan as the
-paper's Fig. 5 does.
-
-This module also holds what `dbw localize` shares with it: reading a recording, the
-vehicle's calibration, and how bad input ends a command (exit 2, one line, no
-traceback). A recording cut off inside a record is used up to the cut, with a warning
-and exit status 1, as `dbw lms111 decode` does.
+paper's Fig. 5 does. A recording cut off inside a record is used up to the cut, with a
+warning and exit status 1, as `dbw lms111 decode` does (the reading is shared with
+`dbw localize`: `appliance.cli.recordings`).
 """
 
 from __future__ import annotations
@@ -20,115 +17,30 @@ import json
 import math
 import sys
 from collections.abc import Sequence
-from typing import TYPE_CHECKING, Any, NoReturn
+from typing import TYPE_CHECKING, Any
 
 import click
 
-from appliance.cli.common import CONFIG_OPTION, EXIT_CONFIG_ERROR, draw_png, load_or_exit
+from appliance.cli.common import CONFIG_OPTION, bad_input, draw_png, load_or_exit
+from appliance.cli.recordings import (
+    EXIT_TRUNCATED,
+    SCANNERS,
+    load_calibration_or_exit,
+    pose_json,
+    read_recording_or_exit,
+    scanner_of,
+    sensor_angles_rad,
+    warn_truncated,
+)
 
 if TYPE_CHECKING:
-    import numpy as np
-    import numpy.typing as npt
-
-    from appliance.config.calibration import Calibration
-    from appliance.config.models import VehicleConfig
     from appliance.perception.types import CircleFeature, LineFeature, ScanFeatures
     from drivers.geometry import Pose2D
-    from drivers.lms111.recording import RecordedScans, RecordingHeader
     from drivers.lms111.scan import Scan
-
-    FloatArray = npt.NDArray[np.float64]
-
-EXIT_BAD_INPUT = EXIT_CONFIG_ERROR
-EXIT_TRUNCATED = 1  # as `dbw lms111 decode`: the output is what was read before the cut
 
 # The drawing shows what lies within this distance of the scanner: the launcher's
 # approach zone is about 10 m (Qian et al. 4.1); a yard's far walls would shrink it away.
 CLOSE_UP_M = 15.0
-SCANNERS = ("left", "right")
-
-
-def bad_input(message: str) -> NoReturn:
-    click.echo(f"error: {message}", err=True)
-    sys.exit(EXIT_BAD_INPUT)
-
-
-def read_recording_or_exit(path: str) -> RecordedScans:
-    """Every scan of the recording at ``path``; exit 2 unless it is a recording with scans.
-    A cut-off file is returned with what was read (``truncated`` says where it ends)."""
-    from drivers.lms111.recording import RecordingError, read_scans
-
-    try:
-        recording = read_scans(path)
-    except RecordingError as exc:
-        bad_input(str(exc))
-    except OSError as exc:
-        bad_input(f"{path}: cannot read the recording: {exc.strerror or exc}")
-    if not any(scan.ranges_m.size for scan in recording.scans):
-        cut = " before it was cut off" if recording.truncated else ""
-        bad_input(
-            f"{path}: the recording holds no scans with ranges{cut} "
-            f"({len(recording.scans)} scans, {recording.dropped_telegrams} dropped telegrams)"
-        )
-    return recording
-
-
-def warn_truncated(recordings: Sequence[RecordedScans]) -> bool:
-    """Say on stderr which recordings were cut off (their scans were used up to the cut)."""
-    cut = [r for r in recordings if r.truncated]
-    for recording in cut:
-        click.echo(
-            f"warning: {recording.truncated}; used the {len(recording.scans)} scans before it",
-            err=True,
-        )
-    return bool(cut)
-
-
-def load_calibration_or_exit(path: str | None, config: VehicleConfig) -> Calibration | None:
-    if path is None:
-        return None
-    from appliance.config.calibration_file import CalibrationError, load_calibration
-
-    try:
-        return load_calibration(path, config.name, config.simulation.enabled)
-    except CalibrationError as exc:
-        bad_input(exc.render().replace("\n", " "))
-    except OSError as exc:
-        bad_input(f"{path}: cannot read the calibration: {exc.strerror or exc}")
-
-
-def scanner_of(header: RecordingHeader, config: VehicleConfig, path: str) -> str:
-    """Which front scanner a recording is of, from the endpoint it was recorded from."""
-    endpoints = {
-        "left": (config.devices.lms111_left.host, config.devices.lms111_left.port),
-        "right": (config.devices.lms111_right.host, config.devices.lms111_right.port),
-    }
-    matches = [
-        name for name, endpoint in endpoints.items() if endpoint == (header.host, header.port)
-    ]
-    if len(matches) == 1:
-        return matches[0]
-    whose = "both scanners'" if matches else "neither scanner's"
-    bad_input(
-        f"{path}: recorded from {header.host}:{header.port}, which is {whose} endpoint in "
-        f"the vehicle file {config.name!r}: say which scanner it is with --scanner left|right"
-    )
-
-
-def sensor_angles_rad(scan: Scan) -> FloatArray:
-    """The scan's beam angles in its sensor frame (x out of the window)."""
-    from drivers.lms111.mounted import DEVICE_FORWARD_RAD
-
-    angles: FloatArray = scan.angles_rad - DEVICE_FORWARD_RAD
-    return angles
-
-
-def pose_json(pose: Pose2D) -> dict[str, float]:
-    return {
-        "x_m": round(pose.x_m, 5),
-        "y_m": round(pose.y_m, 5),
-        "yaw_deg": round(math.degrees(pose.yaw_rad), 5),
-    }
 
 
 @click.command()

@@ -15,14 +15,10 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from appliance.localization.launcher_map import LauncherMap
-from appliance.localization.scanner_calibration import (
-    BOARD,
-    CalibrationParams,
-    DockedPose,
-    ScannerCalibrationResult,
-    calibrate_scanner,
-    calibrated_mount,
-)
+from appliance.localization.scanner_calibration import calibrate_scanner, calibrated_mount
+from appliance.localization.scanner_calibration_params import CalibrationParams, DockedPose
+from appliance.localization.scanner_calibration_points import BOARD
+from appliance.localization.scanner_calibration_verdict import ScannerCalibrationResult
 from appliance.sim.scanner_errors import ScannerErrors, draw_scanner_errors, ideal_scanner
 from appliance.sim.scanner_model import DEVICE_FORWARD_RAD, RayCache, beam_angles_rad, render_scan
 from appliance.sim.site import Circle, Site
