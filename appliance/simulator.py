@@ -25,6 +25,8 @@ from appliance.sim.site_file import load_site
 from appliance.sim.twins.board_set import ActuatorTwins
 from appliance.sim.twins.lms111 import Lms111Twin
 from appliance.sim.twins.pc104 import Pc104Twin
+from appliance.sim.twins.pc104_core import TwinParams
+from appliance.sim.twins.pc104_pose_loop import PoseLoopParams
 from appliance.sim.vehicle import VehicleParams, VehicleState
 from appliance.sim.world import SimWorld
 from appliance.supervisor import ServiceSpec, beating_service
@@ -64,6 +66,19 @@ def twin_service(
     return beating_service(name, run, policy, TWIN_HEARTBEAT_DEADLINE_S)
 
 
+def pc104_twin_params(config: VehicleConfig) -> TwinParams:
+    """The PC104 knows its own vehicle: the wheelbase its rear steering turns about, and
+    the front end whose centre its oblique pattern steers onto the expected axis."""
+    docking = config.docking
+    loop = PoseLoopParams(
+        wheelbase_m=config.geometry.wheelbase_m,
+        control_point_forward_m=docking.front_end_forward_m or config.geometry.length_m / 2.0,
+        max_rear_steer_rad=math.radians(config.limits.max_steer_angle_deg),
+        max_crab_rad=math.radians(min(15.0, config.limits.max_steer_angle_deg)),
+    )
+    return TwinParams(pose_loop=loop)
+
+
 def build_simulator(
     config: VehicleConfig,
     policy: RestartPolicy,
@@ -98,7 +113,7 @@ def build_simulator(
             open_bus: BusFactory = open_adapter
         else:
             open_bus = bus_factory(can, protocol.HL_IDS)  # what a PC104 listens to
-        pc104 = Pc104Twin(open_bus, world, step_world=False)
+        pc104 = Pc104Twin(open_bus, world, params=pc104_twin_params(config), step_world=False)
         simulator.pc104_twin = pc104
 
         async def run_pc104(beat: Callable[[], None]) -> None:

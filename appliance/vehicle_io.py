@@ -175,6 +175,7 @@ class Pc104SafeStop:
 
     def command_safe_state(self, command: SafeCommand, reason: str) -> None:
         self._client.send_command(MotionCommand(MotionPattern.STOP, 0.0, 0.0, 0.0, False))
+        self._client.send_pose(None, None)
 
 
 def _build_pc104(config: VehicleConfig, io: VehicleIO, policy: RestartPolicy) -> None:
@@ -334,6 +335,7 @@ class VehicleCommandSink:
         if pc104 is not None:
             try:
                 pc104.send_command(output.pc104, output.now_s)
+                pc104.send_pose(output.pc104_pose, output.pc104_expected_pose, output.now_s)
                 pc104.set_state(output.hl_state)
             except Exception as exc:
                 errors.append(exc)

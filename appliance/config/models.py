@@ -271,6 +271,10 @@ class Docking(_Model):
     trough_clearance_m: float = Field(0.01, gt=0.0, le=0.2)  # a trough is 2x this wider
     standoff_m: float = Field(0.0, ge=0.0, le=20.0)  # gap 0: the front end this far out
     max_speed_mps: float = Field(0.3, gt=0.0, le=2.0)
+    # Who turns the pose error into wheel angles: "hl" sends the angles in HL_MotionCommand
+    # (any PC104 follows them); "pc104" also sends HL_Pose and HL_ExpectedPose and lets a
+    # PC104 that runs its own PID per pattern (Qian et al.'s) steer on them.
+    pose_loop: Literal["hl", "pc104"] = "hl"
     # The automatic navigation zone: docking is engaged only inside it.
     zone_max_gap_m: float = Field(12.0, gt=0.0, le=50.0)
     zone_max_lateral_m: float = Field(1.5, gt=0.0, le=10.0)

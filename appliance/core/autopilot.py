@@ -18,8 +18,9 @@ from appliance.config import parts
 from appliance.config.calibration import Calibration
 from appliance.config.models import VehicleConfig, VehicleKind
 from appliance.guidance.dock_source import DockSource
+from drivers.geometry import Pose2D
 from drivers.lms111.mounted import MountedScan
-from drivers.pc104.messages import MotionPattern
+from drivers.pc104.messages import MotionPattern, PoseState
 
 
 @dataclass(frozen=True)
@@ -45,6 +46,9 @@ class AutopilotWish:
     for the set speed backwards, ``rear_steer_rad`` is the rear row's angle in the
     REAR_STEER pattern (physical, left positive); the limits apply to both. ``status`` is
     what the source has to say in `dbw status` (plain data: a pose, a phase, a gap).
+    ``pose`` (with ``pose_state``) and ``expected_pose`` are the source's estimate of the
+    geometric centre and where its plan takes it, in the site frame; the PC104 link
+    carries them for a PC104 that closes the steering loop itself.
     """
 
     ready: bool
@@ -55,6 +59,9 @@ class AutopilotWish:
     rear_steer_rad: float = 0.0
     reverse: bool = False
     status: Mapping[str, object] = field(default_factory=dict)
+    pose: Pose2D | None = None
+    pose_state: PoseState = PoseState.LOST
+    expected_pose: Pose2D | None = None
 
 
 class AutopilotSource(Protocol):
@@ -124,6 +131,9 @@ class DockAutopilot:
             rear_steer_rad=wish.rear_steer_rad,
             reverse=wish.speed_mps < 0.0,
             status=wish.status,
+            pose=wish.pose,
+            pose_state=PoseState(str(wish.pose_status)),
+            expected_pose=wish.expected_pose,
         )
 
 

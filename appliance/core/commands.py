@@ -11,6 +11,7 @@ rate limits' memory in one place that a restart clears.
 from __future__ import annotations
 
 import math
+from typing import TypeVar
 
 from appliance.config import parts
 from appliance.config.calibration import Calibration
@@ -27,7 +28,16 @@ from drivers.actuators.messages import (
     SteeringMode,
     ThrottleCommand,
 )
-from drivers.pc104.messages import MotionCommand, MotionPattern
+from drivers.geometry import Pose2D
+from drivers.pc104 import protocol
+from drivers.pc104.messages import (
+    HlExpectedPose,
+    HlPose,
+    MotionCommand,
+    MotionPattern,
+    PoseState,
+    SteeringLoop,
+)
 from safety.arbitration import OperatorInput, arbitrate
 from safety.limits import ActuatorCommand, CommandLimiter
 from safety.safe_state import SafeBrake, SafeKind, SpeedRamp
@@ -50,6 +60,7 @@ class CommandPaths:
         self.max_steer_rad = math.radians(config.limits.max_steer_angle_deg)
         self.max_speed_mps = max_speed_mps
         self.hold_to_move = config.engagement.hold_to_move
+        self.steering_loop = SteeringLoop(config.docking.pose_loop)
         self.limiter = CommandLimiter(parts.limit_params(config.limits))
         self.brake = SafeBrake(parts.safe_brake_params(config.safety, config.limits))
         self.speed = SpeedRamp(parts.speed_ramp_params(config.engagement, config.limits))
@@ -122,6 +133,10 @@ class CommandPaths:
             steer_tyre_rad=steer_rad,
             speed_setpoint_mps=speed_setpoint,
             notes=notes,
+            pc104_pose=_pose_frame(wish.pose, wish.pose_state),
+            pc104_expected_pose=_expected_frame(wish.expected_pose, self.steering_loop)
+            if automatic
+            else None,
         )
 
     def _speed_target(
@@ -166,6 +181,33 @@ class CommandPaths:
             front_steer_rad=steer_rad,
             rear_steer_rad=rear if pattern is MotionPattern.REAR_STEER else 0.0,
         )
+
+
+_Frame = TypeVar("_Frame", HlPose, HlExpectedPose)
+
+
+def _carried(message: _Frame) -> _Frame | None:
+    """``message``, or None when its frame cannot carry it (a pose beyond ±32 m of the
+    site's origin): a PC104 steering on pose then stops for the missing frame, as it
+    must, and the control loop does not fail over a report."""
+    try:
+        protocol.encode(message, 0)
+    except protocol.CommandRefused:
+        return None
+    return message
+
+
+def _pose_frame(pose: Pose2D | None, state: PoseState) -> HlPose | None:
+    if pose is None:
+        return None
+    return _carried(HlPose(pose.x_m, pose.y_m, math.remainder(pose.yaw_rad, math.tau), state))
+
+
+def _expected_frame(pose: Pose2D | None, loop: SteeringLoop) -> HlExpectedPose | None:
+    if pose is None:
+        return None
+    yaw_rad = math.remainder(pose.yaw_rad, math.tau)
+    return _carried(HlExpectedPose(pose.x_m, pose.y_m, yaw_rad, loop))
 
 
 def panel_command(state: ModeState) -> PanelCommand:

@@ -18,7 +18,7 @@ from drivers.actuators.messages import (
     SteeringMode,
     ThrottleCommand,
 )
-from drivers.pc104.messages import HighLevelState, MotionCommand
+from drivers.pc104.messages import HighLevelState, HlExpectedPose, HlPose, MotionCommand
 from safety.arbitration import OperatorInput
 
 SAFE_MODES = frozenset({Mode.BOOT, Mode.SELF_CHECK, Mode.ERROR, Mode.ESTOP})
@@ -46,6 +46,9 @@ class CoreOutput:
     steer_tyre_rad: float | None  # what steering was commanded (tyre angle), None: released
     speed_setpoint_mps: float | None  # None: PC104 told STOP
     notes: tuple[Note, ...] = ()
+    # For a PC104 that steers on pose: the estimate, and where the plan goes (engaged only).
+    pc104_pose: HlPose | None = None
+    pc104_expected_pose: HlExpectedPose | None = None
 
     @property
     def engaged(self) -> bool:

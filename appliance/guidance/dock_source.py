@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 from appliance.guidance.docking import (
     DockingCommand,
@@ -34,6 +34,7 @@ from appliance.localization.launcher_localizer import (
     LocalizerParams,
     ScannerSetup,
 )
+from drivers.geometry import Pose2D
 from drivers.lms111.mounted import DEVICE_FORWARD_RAD, MountedScan
 from drivers.pc104.messages import MotionPattern
 
@@ -56,7 +57,12 @@ class DockSourceParams:
 
 @dataclass(frozen=True)
 class Wish:
-    """What the source hands the core; kept free of the core's types (which import us)."""
+    """What the source hands the core; kept free of the core's types (which import us).
+
+    ``pose`` is the geometric centre's estimate in the launcher frame whenever there is one
+    (with its status: a PC104 that steers on it must know whether to trust it), and
+    ``expected_pose`` the docked pose while a plan is being carried out: what the PC104
+    link carries for a PC104 that closes the loop itself."""
 
     ready: bool
     reason: str
@@ -65,6 +71,9 @@ class Wish:
     front_steer_rad: float
     rear_steer_rad: float
     status: Mapping[str, object]
+    pose: Pose2D | None = None
+    pose_status: LocalizationStatus = LocalizationStatus.LOST
+    expected_pose: Pose2D | None = None
 
 
 def _round(value: float | None, digits: int) -> float | None:
@@ -130,9 +139,25 @@ class DockSource:
                 name, mounted.scan.ranges_m, angles, mounted.host_receive_time_s, now_s
             )
 
+    def docked_pose(self) -> Pose2D:
+        """Where the geometric centre is when docked: the front end at the stand-off, on
+        the launcher's axis, square to it."""
+        p = self.params.docking
+        return Pose2D(-p.standoff_m - p.front_end_forward_m, 0.0, 0.0)
+
     def wish(self, scans: Mapping[str, MountedScan | None], engaged: bool, now_s: float) -> Wish:
         self._feed(scans, now_s)
         estimate = self.localizer.estimate(now_s)
+        wish = self._wish(estimate, engaged, now_s)
+        planned = engaged and wish.ready
+        return replace(
+            wish,
+            pose=estimate.centre_pose,
+            pose_status=estimate.status,
+            expected_pose=self.docked_pose() if planned else None,
+        )
+
+    def _wish(self, estimate: LocalizationEstimate, engaged: bool, now_s: float) -> Wish:
         status: dict[str, object] = {"localization": estimate_status(estimate)}
         if not engaged:
             self.controller.reset()

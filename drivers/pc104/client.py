@@ -13,6 +13,8 @@ PC104 reports automatic control; otherwise STOP, and once a motion command has b
 replaced by STOP the client holds STOP until the control loop sends STOP itself. The
 PC104 applies the same rule on its side (it stops 100 ms after commands stop, then waits
 for a STOP), so whether motion resumes is always the control loop's explicit decision.
+The pose and the expected pose (:meth:`send_pose`) follow each command frame under the
+same age rule, for a PC104 that closes the steering loop itself.
 
 Failures never end ``run``: a full transmit buffer drops the frame, a lost interface
 closes and reopens the bus with backoff, a restarted PC104 is resynchronised by the
@@ -46,7 +48,10 @@ from drivers.pc104.link import BusFactory, BusLink, Episode, LinkLost, bus_facto
 from drivers.pc104.messages import (
     PROTOCOL_VERSION,
     HighLevelState,
+    HlExpectedPose,
     HlHeartbeat,
+    HlMessage,
+    HlPose,
     Inclinometer,
     MotionCommand,
     MotorPulses,
@@ -60,6 +65,7 @@ from drivers.pc104.protocol import ErrorReason, Pc104ProtocolError
 log: FilteringBoundLogger = structlog.get_logger(component="pc104")
 
 MAX_FRAMES_PER_TURN = 256
+_SENT = (MotionCommand, HlHeartbeat, HlPose, HlExpectedPose)
 _BUS_STATES = {can.BusState.PASSIVE: BusCondition.PASSIVE, can.BusState.ERROR: BusCondition.BUS_OFF}
 
 
@@ -98,7 +104,10 @@ class Pc104Client:
         self._command_s = -math.inf
         self._holding = False
         self._state = HighLevelState.STANDBY
-        self._counters = {protocol.spec_for(t).frame_id: 0 for t in (MotionCommand, HlHeartbeat)}
+        self._pose: HlPose | None = None
+        self._expected: HlExpectedPose | None = None
+        self._pose_s = self._expected_s = -math.inf
+        self._counters = {protocol.spec_for(t).frame_id: 0 for t in _SENT}
         self._link: BusLink | None = None
         self._send_loss: LinkLost | None = None  # a send for a caller found the link lost
         self._next_command_s = self._next_heartbeat_s = -math.inf
@@ -145,6 +154,23 @@ class Pc104Client:
         due = urgent or now - self._last_command_sent_s >= self.params.command_period_s / 2
         if due and self._send_for_caller(lambda: self._send_command_frame(link, now)):
             self._next_command_s = now + self.params.command_period_s
+
+    def send_pose(
+        self, pose: HlPose | None, expected: HlExpectedPose | None, now_s: float | None = None
+    ) -> None:
+        """The pose and the expected pose sent after each motion command (None: none).
+
+        Each goes out only while it is younger than ``lower_layer_command_timeout_s``, like
+        the command: a control loop that stops calling stops them too, and a PC104 that
+        closes the loop on pose then stops the vehicle. Raises CommandRefused at once for
+        a value outside the DBC."""
+        now = self._clock() if now_s is None else now_s
+        if pose is not None:
+            protocol.encode(pose, 0)
+        if expected is not None:
+            protocol.encode(expected, 0)
+        self._pose, self._expected = pose, expected
+        self._pose_s = self._expected_s = now
 
     def set_state(self, state: HighLevelState) -> None:
         """The high-level state announced in HL_Heartbeat; a change is sent at once."""
@@ -304,8 +330,13 @@ class Pc104Client:
             self._ep_hold.clear(now_s)
         self._last_command_sent_s = now_s
         self._transmit(link, command, now_s)
+        timeout_s = self.params.command_timeout_s
+        if self._pose is not None and now_s - self._pose_s <= timeout_s:
+            self._transmit(link, self._pose, now_s)
+        if self._expected is not None and now_s - self._expected_s <= timeout_s:
+            self._transmit(link, self._expected, now_s)
 
-    def _transmit(self, link: BusLink, message: MotionCommand | HlHeartbeat, now_s: float) -> None:
+    def _transmit(self, link: BusLink, message: HlMessage, now_s: float) -> None:
         frame_id = protocol.spec_for(type(message)).frame_id
         counter = self._counters[frame_id]
         self._counters[frame_id] = (counter + 1) % protocol.COUNTER_MODULO

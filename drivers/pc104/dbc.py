@@ -24,7 +24,9 @@ from cantools.database.can import Message as DbcMessage
 from drivers.pc104.messages import (
     ControlSource,
     HighLevelState,
+    HlExpectedPose,
     HlHeartbeat,
+    HlPose,
     Inclinometer,
     Message,
     MotionCommand,
@@ -34,6 +36,8 @@ from drivers.pc104.messages import (
     Pc104Heartbeat,
     Pc104State,
     Pc104Status,
+    PoseState,
+    SteeringLoop,
     WheelAngles,
 )
 
@@ -68,6 +72,8 @@ if _codes("PC104_Status", "ActivePattern", MotionPattern)[0] != _PATTERN_TO_CODE
 _SOURCE_TO_CODE, _CODE_TO_SOURCE = _codes("PC104_Status", "ControlSource", ControlSource)
 _HL_STATE_TO_CODE, _CODE_TO_HL_STATE = _codes("HL_Heartbeat", "State", HighLevelState)
 _PC_STATE_TO_CODE, _CODE_TO_PC_STATE = _codes("PC104_Heartbeat", "State", Pc104State)
+_POSE_STATE_TO_CODE, _CODE_TO_POSE_STATE = _codes("HL_Pose", "PoseState", PoseState)
+_LOOP_TO_CODE, _CODE_TO_LOOP = _codes("HL_ExpectedPose", "SteeringLoop", SteeringLoop)
 
 Signals = dict[str, float]
 _FAULT_SIGNALS = {
@@ -78,6 +84,7 @@ _FAULT_SIGNALS = {
     "encoder": "FaultEncoder",
     "inclinometer": "FaultInclinometer",
     "motor_pulses": "FaultMotorPulses",
+    "pose": "FaultPose",
 }
 _ROWS = range(1, 5)
 
@@ -100,6 +107,34 @@ def _command(s: Mapping[str, float]) -> MotionCommand:
         rear_steer_rad=s["RearSteerSetpoint"],
         level_platform=bool(s["LevelPlatform"]),
     )
+
+
+def _pose_signals(m: HlPose) -> Signals:
+    return {
+        "PoseState": _POSE_STATE_TO_CODE[m.state],
+        "PoseX": m.x_m,
+        "PoseY": m.y_m,
+        "PoseYaw": m.yaw_rad,
+    }
+
+
+def _pose(s: Mapping[str, float]) -> HlPose:
+    state = _CODE_TO_POSE_STATE[int(s["PoseState"])]
+    return HlPose(s["PoseX"], s["PoseY"], s["PoseYaw"], state)
+
+
+def _expected_signals(m: HlExpectedPose) -> Signals:
+    return {
+        "SteeringLoop": _LOOP_TO_CODE[m.loop],
+        "ExpectedX": m.x_m,
+        "ExpectedY": m.y_m,
+        "ExpectedYaw": m.yaw_rad,
+    }
+
+
+def _expected(s: Mapping[str, float]) -> HlExpectedPose:
+    loop = _CODE_TO_LOOP[int(s["SteeringLoop"])]
+    return HlExpectedPose(s["ExpectedX"], s["ExpectedY"], s["ExpectedYaw"], loop)
 
 
 def _status_signals(m: Pc104Status) -> Signals:
@@ -222,6 +257,8 @@ def _spec(name: str, to: Callable[[Any], Signals], frm: Callable[..., Message]) 
 SPECS: dict[type, MessageSpec] = {
     MotionCommand: _spec("HL_MotionCommand", _command_signals, _command),
     HlHeartbeat: _spec("HL_Heartbeat", _hl_beat_signals, _hl_beat),
+    HlPose: _spec("HL_Pose", _pose_signals, _pose),
+    HlExpectedPose: _spec("HL_ExpectedPose", _expected_signals, _expected),
     Pc104Status: _spec("PC104_Status", _status_signals, _status),
     WheelAngles: _spec("PC104_WheelAngles", _wheel_signals, _wheels),
     MotorPulses: _spec("PC104_MotorPulses", _pulse_signals, _pulses),
@@ -229,7 +266,7 @@ SPECS: dict[type, MessageSpec] = {
     Pc104Heartbeat: _spec("PC104_Heartbeat", _pc_beat_signals, _pc_beat),
 }
 SPECS_BY_ID: dict[int, MessageSpec] = {spec.frame_id: spec for spec in SPECS.values()}
-HL_IDS = frozenset(SPECS[t].frame_id for t in (MotionCommand, HlHeartbeat))
+HL_IDS = frozenset(SPECS[t].frame_id for t in (MotionCommand, HlHeartbeat, HlPose, HlExpectedPose))
 PC104_IDS = frozenset(SPECS_BY_ID) - HL_IDS
 
 

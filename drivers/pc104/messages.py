@@ -69,6 +69,41 @@ class MotionCommand:
         return cls(MotionPattern.STOP)
 
 
+class PoseState(StrEnum):
+    """How far the high level trusts the pose it sends (its localization status)."""
+
+    LOST = "lost"
+    DEGRADED = "degraded"
+    OK = "ok"
+
+
+class SteeringLoop(StrEnum):
+    """Who turns the pose error into wheel angles (HL_ExpectedPose.SteeringLoop)."""
+
+    HL = "hl"  # the PC104 follows HL_MotionCommand's steer set-points
+    PC104 = "pc104"  # the PC104's PID per pattern on HL_Pose and HL_ExpectedPose
+
+
+@dataclass(frozen=True)
+class HlPose:
+    """HL -> PC104: the geometric centre's pose in the site frame, with its trust."""
+
+    x_m: float
+    y_m: float
+    yaw_rad: float  # in [-pi, pi]
+    state: PoseState = PoseState.OK
+
+
+@dataclass(frozen=True)
+class HlExpectedPose:
+    """HL -> PC104: where the plan takes the geometric centre, and who steers there."""
+
+    x_m: float
+    y_m: float
+    yaw_rad: float  # in [-pi, pi]
+    loop: SteeringLoop = SteeringLoop.HL
+
+
 @dataclass(frozen=True)
 class HlHeartbeat:
     state: HighLevelState
@@ -84,6 +119,7 @@ class Pc104Faults:
     encoder: bool = False
     inclinometer: bool = False
     motor_pulses: bool = False
+    pose: bool = False  # closing the loop on pose, and the pose is missing or not OK
 
     @property
     def any(self) -> bool:
@@ -156,7 +192,7 @@ class Pc104Heartbeat:
     protocol_version: int = PROTOCOL_VERSION
 
 
-HlMessage = MotionCommand | HlHeartbeat
+HlMessage = MotionCommand | HlHeartbeat | HlPose | HlExpectedPose
 Pc104Message = Pc104Status | WheelAngles | MotorPulses | Inclinometer | Pc104Heartbeat
 Message = HlMessage | Pc104Message
 
@@ -166,8 +202,10 @@ __all__ = [
     "ROW_COUNT",
     "ControlSource",
     "HighLevelState",
+    "HlExpectedPose",
     "HlHeartbeat",
     "HlMessage",
+    "HlPose",
     "Inclinometer",
     "Message",
     "MotionCommand",
@@ -178,6 +216,8 @@ __all__ = [
     "Pc104Message",
     "Pc104State",
     "Pc104Status",
+    "PoseState",
+    "SteeringLoop",
     "WheelAngles",
     "pulse_delta",
 ]

@@ -32,7 +32,16 @@ from drivers.pc104.client import Pc104Client
 from drivers.pc104.endpoint import CanInterface
 from drivers.pc104.errorframes import BusCondition
 from drivers.pc104.link import bus_factory
-from drivers.pc104.messages import ControlSource, MotionCommand, MotionPattern, Pc104Status
+from drivers.pc104.messages import (
+    ControlSource,
+    HlExpectedPose,
+    HlPose,
+    MotionCommand,
+    MotionPattern,
+    Pc104Status,
+    PoseState,
+    SteeringLoop,
+)
 from drivers.topics import Topic
 
 pytestmark = pytest.mark.timeout(30)
@@ -169,6 +178,44 @@ async def test_commands_move_the_simulated_vehicle(rig: Rig) -> None:
     wheels = rig.client.topics.wheel_angles.latest()
     assert wheels is not None and wheels.value.front_rad > 0.1
     assert rig.world.state.yaw_rad > 0.01  # turning left
+
+
+async def test_the_pose_frames_go_out_with_the_commands_while_they_are_refreshed(
+    rig: Rig,
+) -> None:
+    """HL_Pose and HL_ExpectedPose follow each command; when the pose stops coming while
+    the plan goes on, the twin, steering on pose, stops the vehicle and says why."""
+    expected = HlExpectedPose(-6.0, 0.0, 0.0, SteeringLoop.PC104)
+    command = MotionCommand(MotionPattern.REAR_STEER, 0.3)
+    end_s = time.monotonic() + 1.0
+    while time.monotonic() < end_s:
+        state = rig.world.state
+        rig.client.send_command(command)
+        rig.client.send_pose(HlPose(state.x_m, state.y_m, state.yaw_rad, PoseState.OK), expected)
+        await asyncio.sleep(PERIOD_S / 2)
+    core = rig.twin.core
+    assert core.expected_pose == expected and core.pose is not None
+    assert core.closing_pose_loop(time.monotonic())
+    assert rig.world.state.speed_mps > 0.1 and not core.pose_fault
+    counts = core.monitors[HlPose].counts
+    assert counts.accepted >= 30 and counts.counter_errors == 0
+    # Commands and the plan go on, the pose no longer comes: the twin must not steer blind.
+    end_s = time.monotonic() + 0.5
+    while time.monotonic() < end_s:
+        rig.client.send_command(command)
+        rig.client.send_pose(None, expected)
+        await asyncio.sleep(PERIOD_S / 2)
+    assert core.pose_fault
+    assert rig.world.command.pattern is MotionPattern.STOP
+    await wait_until(lambda: _pose_fault_reported(rig), 1.0, "FaultPose in the status")
+    # A plan no longer refreshed by the control loop stops going out too.
+    await rig.drive(STOP, 0.3)
+    assert not core.closing_pose_loop(time.monotonic())
+
+
+def _pose_fault_reported(rig: Rig) -> bool:
+    sample = rig.client.topics.status.latest()
+    return sample is not None and sample.value.faults.pose
 
 
 async def test_dropped_status_is_stale_within_one_period_of_the_limit(rig: Rig) -> None:

@@ -7,6 +7,10 @@ rules as the client: commands with a bad length, CRC or counter are dropped and 
 and it stops the vehicle 100 ms after the last valid command. After such a stop, and when
 the cab or remote takes over, it holds the vehicle until it receives a STOP command in
 automatic control (``StopRequired``): motion never resumes just because frames do.
+When the high level asks it to close the steering loop itself (HL_ExpectedPose with
+SteeringLoop = PC104), it steers STRAIGHT, OBLIQUE and REAR_STEER from HL_Pose and the
+expected pose (:mod:`.pc104_pose_loop`), and stops the same way (``FaultPose``) the moment
+that pose is missing for 100 ms or not OK: it never steers blind.
 
 Fault injection (:class:`TwinFaults`) acts on what the twin transmits, the way a
 misbehaving controller or bus would show up at the client. ``bus_off`` and
@@ -25,14 +29,18 @@ from collections import deque
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
+from appliance.sim.twins.pc104_pose_loop import POSE_PATTERNS, PoseLoop, PoseLoopParams
 from appliance.sim.world import SimWorld
+from drivers.geometry import Pose2D
 from drivers.pc104 import protocol
 from drivers.pc104.errorframes import BusCondition, error_frame
 from drivers.pc104.messages import (
     PULSE_COUNTER_MODULO,
     ControlSource,
     HighLevelState,
+    HlExpectedPose,
     HlHeartbeat,
+    HlPose,
     Inclinometer,
     Message,
     MotionCommand,
@@ -43,6 +51,8 @@ from drivers.pc104.messages import (
     Pc104Message,
     Pc104State,
     Pc104Status,
+    PoseState,
+    SteeringLoop,
     WheelAngles,
 )
 from drivers.pc104.monitor import MonitorParams, ReceiveMonitor, RxVerdict
@@ -52,6 +62,8 @@ _ROW_LIMIT_RAD = 1.57
 _SPEED_LIMIT_MPS = 10.0
 _TILT_LIMIT_RAD = 0.5236
 _DECODED_FRAMES = 64  # a held command and the heartbeat, every counter value: 32
+# The HL's frames the twin checks for counter continuity, each with its own monitor.
+_MONITORED = (MotionCommand, HlPose, HlExpectedPose)
 
 
 class OutFrame(NamedTuple):
@@ -118,6 +130,7 @@ class TwinParams:
     pulses_per_m: float = 100.0
     inclinometer_noise_rad: float = 0.0005
     gains: PidGains = field(default_factory=PidGains)
+    pose_loop: PoseLoopParams = field(default_factory=PoseLoopParams)
 
 
 class Pc104TwinCore:
@@ -137,10 +150,14 @@ class Pc104TwinCore:
         self.emit_error_frames = emit_error_frames
         self._rng = random.Random(seed)
         self.pid = PidSpeedController(params.gains)
-        spec = protocol.spec_for(MotionCommand)
-        self.command_monitor = ReceiveMonitor(
-            MonitorParams(spec.period_s, params.command_max_age_s)
-        )
+        self.pose_loop = PoseLoop(params.pose_loop)
+        self.monitors = {
+            t: ReceiveMonitor(
+                MonitorParams(protocol.spec_for(t).period_s, params.command_max_age_s)
+            )
+            for t in _MONITORED
+        }
+        self.command_monitor = self.monitors[MotionCommand]
         self.restarts = -1  # restart() counts the first boot as 0
         # per message type: the last message and its frames by counter (see _encode)
         self._encoded: dict[type, tuple[Pc104Message, dict[int, tuple[int, bytes]]]] = {}
@@ -150,9 +167,14 @@ class Pc104TwinCore:
     def restart(self, now_s: float) -> None:
         """A reboot of the controller: counters from 0, STOP required, nothing remembered."""
         self.pid.reset()
-        self.command_monitor.reset()
+        self.pose_loop.reset()
+        for monitor in self.monitors.values():
+            monitor.reset()
         self.boot_s = now_s
         self.command: MotionCommand | None = None
+        self.pose: HlPose | None = None
+        self.expected_pose: HlExpectedPose | None = None
+        self.pose_fault = False  # closing the loop on pose without a usable pose
         self.control_source = ControlSource.AUTOMATIC
         self.stop_required = True
         self.applied_pattern = MotionPattern.STOP
@@ -184,11 +206,16 @@ class Pc104TwinCore:
             # Liveness only (the command timeout is what stops us); kept for the bench.
             self.hl_state = message.state
             return
-        if not isinstance(message, MotionCommand):
+        if not isinstance(message, MotionCommand | HlPose | HlExpectedPose):
             return
-        verdict = self.command_monitor.update(now_s, counter)
+        verdict = self.monitors[type(message)].update(now_s, counter)
         if verdict is RxVerdict.ACCEPTED:
-            self.command = message
+            if isinstance(message, MotionCommand):
+                self.command = message
+            elif isinstance(message, HlPose):
+                self.pose = message
+            else:
+                self.expected_pose = message
         elif verdict is not RxVerdict.RESYNCING:
             self._invalid(now_s, None)
 
@@ -211,8 +238,9 @@ class Pc104TwinCore:
     def _invalid(self, now_s: float, arbitration_id: int | None) -> None:
         self.bad_command_frames = (self.bad_command_frames + 1) % 256
         self.last_invalid_s = now_s
-        if arbitration_id == protocol.spec_for(MotionCommand).frame_id:
-            self.command_monitor.record_invalid(now_s)
+        for message_type, monitor in self.monitors.items():
+            if arbitration_id == protocol.spec_for(message_type).frame_id:
+                monitor.record_invalid(now_s)
 
     # ---- one step of the controller ---------------------------------------------------
     def tick(self, now_s: float) -> list[OutFrame]:
@@ -235,6 +263,23 @@ class Pc104TwinCore:
     def command_fresh(self, now_s: float) -> bool:
         return self.command is not None and not self.command_monitor.stale(now_s)
 
+    def closing_pose_loop(self, now_s: float) -> bool:
+        """The HL asks this controller to steer on pose (a fresh HL_ExpectedPose says so)."""
+        expected = self.expected_pose
+        return (
+            expected is not None
+            and expected.loop is SteeringLoop.PC104
+            and not self.monitors[HlExpectedPose].stale(now_s)
+        )
+
+    def _pose_usable(self, now_s: float) -> bool:
+        pose = self.pose
+        return (
+            pose is not None
+            and pose.state is PoseState.OK
+            and not self.monitors[HlPose].stale(now_s)
+        )
+
     def _control(self, now_s: float, dt_s: float) -> None:
         source = ControlSource.CAB if self.faults.cab_control else ControlSource.AUTOMATIC
         if source is not self.control_source:
@@ -246,13 +291,22 @@ class Pc104TwinCore:
             self.applied_pattern = MotionPattern.STOP
             return
         command = self.command if self.command_fresh(now_s) else None
+        pose_loop = (
+            command is not None
+            and command.pattern in POSE_PATTERNS
+            and self.closing_pose_loop(now_s)
+        )
         if command is None:
             self.stop_required = True
         elif command.pattern is MotionPattern.STOP:
             self.stop_required = False
+            self.pose_fault = False
+        if pose_loop and not self._pose_usable(now_s):
+            self.pose_fault = self.stop_required = True  # steering blind: stop, wait for STOP
         if command is None or self.stop_required or command.pattern is MotionPattern.STOP:
             self.applied_pattern = MotionPattern.STOP
             self.pid.reset()
+            self.pose_loop.reset()
             self.world.set_inputs(
                 WORLD_SOURCE,
                 pattern=MotionPattern.STOP,
@@ -264,14 +318,27 @@ class Pc104TwinCore:
             )
             return
         self.applied_pattern = command.pattern
-        throttle_pct, brake_pct, reverse = self.pid.update(
-            command.speed_mps, self.world.state.speed_mps, dt_s
-        )
+        state = self.world.state
+        throttle_pct, brake_pct, reverse = self.pid.update(command.speed_mps, state.speed_mps, dt_s)
+        front_rad, rear_rad = command.front_steer_rad, command.rear_steer_rad
+        if pose_loop:
+            assert self.pose is not None and self.expected_pose is not None
+            front_rad, rear_rad = self.pose_loop.update(
+                command.pattern,
+                state.speed_mps,
+                Pose2D(self.pose.x_m, self.pose.y_m, self.pose.yaw_rad),
+                Pose2D(self.expected_pose.x_m, self.expected_pose.y_m, self.expected_pose.yaw_rad),
+                state.front_steer_rad,
+                -state.rear_steer_rad,
+                dt_s,
+            )
+        else:
+            self.pose_loop.reset()
         self.world.set_inputs(
             WORLD_SOURCE,
             pattern=command.pattern,
-            front_steer_rad=command.front_steer_rad,
-            rear_steer_rad=-command.rear_steer_rad,  # the sim counts counter-steer positive
+            front_steer_rad=front_rad,
+            rear_steer_rad=-rear_rad,  # the sim counts counter-steer positive
             throttle_pct=throttle_pct,
             brake_pct=brake_pct,
             reverse=reverse,
@@ -342,6 +409,7 @@ class Pc104TwinCore:
                 faults=Pc104Faults(
                     command_timeout=automatic and not self.command_fresh(now_s),
                     command_invalid=invalid_recently,
+                    pose=self.pose_fault,
                 ),
                 measured_speed_mps=_clamp(state.speed_mps, _SPEED_LIMIT_MPS),
                 bad_command_frames=self.bad_command_frames,

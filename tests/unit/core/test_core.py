@@ -23,7 +23,15 @@ from appliance.core.core import ControlCore
 from appliance.core.output import CoreOutput
 from appliance.modes import Mode
 from drivers.actuators.messages import Buttons, FaultCode, Lamps, SteeringMode
-from drivers.pc104.messages import ControlSource, HighLevelState, MotionPattern, Pc104Faults
+from drivers.geometry import Pose2D
+from drivers.pc104.messages import (
+    ControlSource,
+    HighLevelState,
+    MotionPattern,
+    Pc104Faults,
+    PoseState,
+    SteeringLoop,
+)
 from tests.unit.core.vehicle import SIM_CALIBRATION, BenchVehicle
 
 CONFIG = load_config("sim")
@@ -315,6 +323,54 @@ def test_engaged_forwards_the_throttle_pedal_to_the_pc104_ramped_and_capped() ->
         assert previous == pytest.approx(CAP_MPS * pedal_pct / 100.0)
     vehicle.throttle_pedal(0.0)
     assert vehicle.step(core).pc104.speed_mps == 0.0  # falling is never limited
+
+
+class PlanningSource:
+    """A source with a pose and a plan, as docking has."""
+
+    name = "plan"
+
+    def __init__(self, pose: Pose2D) -> None:
+        self.pose = pose
+
+    def reset(self) -> None:
+        pass
+
+    def update(self, observation: Observation) -> AutopilotWish:
+        return AutopilotWish(
+            ready=True,
+            pose=self.pose,
+            pose_state=PoseState.OK,
+            expected_pose=Pose2D(-6.0, 0.0, math.tau + 0.1),
+        )
+
+
+@pytest.mark.parametrize("loop", ["hl", "pc104"])
+def test_the_pose_and_the_plan_go_to_the_pc104_the_plan_only_while_engaged(loop: str) -> None:
+    data = CONFIG.model_dump()
+    data["docking"]["pose_loop"] = loop
+    config = VehicleConfig.model_validate(data)
+    source = PlanningSource(Pose2D(-12.0, 0.25, -math.pi - 0.2))
+    core, vehicle = bench(config, autopilot=source)
+    out = vehicle.step(core)
+    assert out.mode is Mode.READY and out.pc104_expected_pose is None
+    assert out.pc104_pose is not None and out.pc104_pose.state is PoseState.OK
+    assert (out.pc104_pose.x_m, out.pc104_pose.y_m) == (-12.0, 0.25)
+    assert out.pc104_pose.yaw_rad == pytest.approx(math.pi - 0.2)  # wrapped into [-pi, pi]
+    vehicle.press(Buttons.ENGAGE)
+    out = vehicle.step(core)
+    assert out.mode is Mode.ENGAGED
+    assert out.pc104_expected_pose is not None
+    assert out.pc104_expected_pose.loop is SteeringLoop(loop)
+    assert out.pc104_expected_pose.yaw_rad == pytest.approx(0.1)
+    # A pose the frame cannot carry (40 m from the site's origin) is not sent at all: a
+    # PC104 steering on pose stops for it, and the control loop carries on.
+    source.pose = Pose2D(40.0, 0.0, 0.0)
+    out = vehicle.step(core)
+    assert out.mode is Mode.ENGAGED and out.pc104_pose is None
+    vehicle.press(Buttons.MANUAL_OVERRIDE)
+    out = vehicle.step(core)
+    assert out.mode is not Mode.ENGAGED and out.pc104_expected_pose is None
 
 
 def test_speed_hold_locks_the_measured_speed_then_steps_and_caps() -> None:

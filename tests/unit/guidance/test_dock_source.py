@@ -16,7 +16,7 @@ from appliance.sim.site_file import load_site
 from drivers.geometry import Pose2D
 from drivers.lms111.mounted import MountedScan, mount_pose
 from drivers.lms111.scan import scan_from_ranges
-from drivers.pc104.messages import MotionPattern
+from drivers.pc104.messages import MotionPattern, PoseState
 
 SITE = load_site("launcher")
 
@@ -87,6 +87,15 @@ def test_engaged_it_plans_the_papers_first_step() -> None:
     assert wish.pattern is MotionPattern.REAR_STEER
     assert wish.rear_steer_rad > 0.0 and wish.max_speed_mps > 0.0 and not wish.reverse
     assert wish.status["docking"]["phase"] == "heading"  # type: ignore[index]
+    # The pose and the plan, for a PC104 that closes the loop itself: the geometric
+    # centre's estimate, and where the centre is when the front end is at the board.
+    truth = _centre(9.0, 0.3, 2.0)
+    assert wish.pose is not None and wish.pose_state is PoseState.OK
+    assert abs(wish.pose.x_m - truth.x_m) < 0.02 and abs(wish.pose.y_m - truth.y_m) < 0.02
+    docked = _centre(0.0)
+    assert wish.expected_pose == Pose2D(docked.x_m, 0.0, 0.0)
+    idle = _run(source, config, truth, engaged=False)
+    assert idle.pose is not None and idle.expected_pose is None  # no plan unless engaged
 
 
 def test_outside_the_zone_it_refuses_with_the_reason() -> None:

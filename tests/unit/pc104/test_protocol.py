@@ -13,7 +13,9 @@ from drivers.pc104 import protocol
 from drivers.pc104.messages import (
     ControlSource,
     HighLevelState,
+    HlExpectedPose,
     HlHeartbeat,
+    HlPose,
     Inclinometer,
     Message,
     MotionCommand,
@@ -23,6 +25,8 @@ from drivers.pc104.messages import (
     Pc104Heartbeat,
     Pc104State,
     Pc104Status,
+    PoseState,
+    SteeringLoop,
     WheelAngles,
     pulse_delta,
 )
@@ -58,7 +62,7 @@ def test_crc_covers_the_identifier_so_a_misrouted_frame_fails() -> None:
 def test_the_dbc_is_versioned_commented_and_timed() -> None:
     db = protocol.DATABASE
     assert db.version
-    assert set(protocol.HL_IDS) == {0x100, 0x101}
+    assert set(protocol.HL_IDS) == {0x100, 0x101, 0x102, 0x103}
     assert set(protocol.PC104_IDS) == {0x110, 0x111, 0x112, 0x113, 0x114}
     for message in db.messages:
         assert message.comment, message.name
@@ -102,6 +106,20 @@ MESSAGES: st.SearchStrategy[Message] = st.one_of(
     ),
     st.builds(HlHeartbeat, st.sampled_from(HighLevelState), st.integers(0, 255)),
     st.builds(
+        HlPose,
+        _in_range("HL_Pose", "PoseX"),
+        _in_range("HL_Pose", "PoseY"),
+        _in_range("HL_Pose", "PoseYaw"),
+        st.sampled_from(PoseState),
+    ),
+    st.builds(
+        HlExpectedPose,
+        _in_range("HL_ExpectedPose", "ExpectedX"),
+        _in_range("HL_ExpectedPose", "ExpectedY"),
+        _in_range("HL_ExpectedPose", "ExpectedYaw"),
+        st.sampled_from(SteeringLoop),
+    ),
+    st.builds(
         Pc104Status,
         st.sampled_from(MotionPattern),
         st.booleans(),
@@ -109,7 +127,7 @@ MESSAGES: st.SearchStrategy[Message] = st.one_of(
         st.booleans(),
         st.booleans(),
         st.booleans(),
-        st.builds(Pc104Faults, *[st.booleans()] * 7),
+        st.builds(Pc104Faults, *[st.booleans()] * 8),
         _in_range("PC104_Status", "MeasuredSpeed"),
         st.integers(0, 255),
     ),
@@ -277,3 +295,28 @@ def test_pulse_delta_wraps() -> None:
     assert pulse_delta(4090, 5) == 11
     assert pulse_delta(100, 100) == 0
     assert pulse_delta(0, 4095) == 4095
+
+
+def test_the_pose_frames_decode_independently_and_refuse_what_they_cannot_carry() -> None:
+    db = cantools.database.load_file(str(protocol.DBC_PATH))
+    assert isinstance(db, cantools.database.can.Database)
+    pose = HlPose(-14.2, 0.0132, -math.pi, PoseState.DEGRADED)
+    arbitration_id, data = encode(pose, counter=5)
+    values = db.get_message_by_frame_id(arbitration_id).decode_simple(data)
+    assert (arbitration_id, str(values["PoseState"]), values["Counter"]) == (0x102, "DEGRADED", 5)
+    assert values["PoseX"] == pytest.approx(-14.2)
+    assert values["PoseY"] == pytest.approx(0.013)
+    assert values["PoseYaw"] == pytest.approx(-math.pi, abs=5e-5)
+    expected = HlExpectedPose(-6.0, 0.0, 0.0, SteeringLoop.PC104)
+    arbitration_id, data = encode(expected, counter=0)
+    values = db.get_message_by_frame_id(arbitration_id).decode_simple(data)
+    assert (arbitration_id, str(values["SteeringLoop"])) == (0x103, "PC104")
+    # 40 m from the site's origin does not fit in 16 bits at 1 mm: refused, never wrapped.
+    with pytest.raises(CommandRefused) as info:
+        encode(HlPose(40.0, 0.0, 0.0), 0)
+    assert info.value.signal == "PoseX"
+    # A pose state the DBC does not define, with a good CRC, is a range error.
+    pose_id = protocol.spec_for(HlPose).frame_id
+    with pytest.raises(Pc104ProtocolError) as rejected:
+        decode(pose_id, _with_crc(pose_id, bytes([0x03, 0, 0, 0, 0, 0, 0])), 0.0)
+    assert (rejected.value.reason, rejected.value.signal) == (ErrorReason.RANGE, "PoseState")
