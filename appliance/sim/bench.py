@@ -33,7 +33,8 @@ from drivers.actuators.messages import BUTTON_ORDER, Buttons
 BoardName = Literal["steering", "throttle", "brake", "panel"]
 ButtonName = Literal["engage", "speed_plus", "speed_minus", "manual_override"]
 Pct = Annotated[float, Field(ge=0.0, le=100.0, allow_inf_nan=False)]
-MAX_HOLD_S = 60.0
+# Long enough for a whole docking approach under hold-to-move, held from start to finish.
+MAX_HOLD_S = 600.0
 # Far beyond any wheel's travel: an operator cannot turn it further than this.
 MAX_HANDS_WHEEL_RAD = 4.0 * math.pi
 

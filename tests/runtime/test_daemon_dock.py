@@ -25,13 +25,16 @@ from drivers.geometry import Pose2D
 from tests.runtime.test_daemon_control import free_port
 from tests.runtime.twin_view import TwinView
 
-pytestmark = pytest.mark.slow
-
 READY_TIMEOUT_S = 40.0
-DOCK_TIMEOUT_S = 120.0  # about 35 s of approach from 3 m at walking pace, on a shared machine
+DOCK_TIMEOUT_S = 150.0  # about 45 s of approach from 3 m at walking pace, on a shared machine
+# The operator holds the engage button the whole way (hold-to-move): longer than the
+# approach may take, or the vehicle stops short where the button was let go.
+HOLD_S = DOCK_TIMEOUT_S + 30.0
+
+pytestmark = [pytest.mark.slow, pytest.mark.timeout(READY_TIMEOUT_S + DOCK_TIMEOUT_S + 60.0)]
 
 
-def dock_config(start_gap_m: float = 3.0) -> VehicleConfig:
+def dock_config(start_gap_m: float = 3.0, pose_loop: str = "hl") -> VehicleConfig:
     config = load_config("flatbed-sim")
     devices = config.devices.model_copy(
         update={
@@ -47,7 +50,10 @@ def dock_config(start_gap_m: float = 3.0) -> VehicleConfig:
             "start_yaw_deg": 1.0,
         }
     )
-    return config.model_copy(update={"devices": devices, "simulation": simulation})
+    docking = config.docking.model_copy(update={"pose_loop": pose_loop})
+    return config.model_copy(
+        update={"devices": devices, "simulation": simulation, "docking": docking}
+    )
 
 
 @contextlib.asynccontextmanager
@@ -71,7 +77,9 @@ async def running(config: VehicleConfig) -> AsyncIterator[tuple[Daemon, TwinView
     assert result.exit_code == 0 and not result.must_force_exit, result
 
 
-async def until(predicate: object, timeout_s: float, daemon: Daemon, what: str) -> float:
+async def until(
+    predicate: object, timeout_s: float, daemon: Daemon, what: str, phases: object = ()
+) -> float:
     assert callable(predicate)
     started = time.monotonic()
     while not predicate():
@@ -82,7 +90,7 @@ async def until(predicate: object, timeout_s: float, daemon: Daemon, what: str) 
                 f"{what}: not within {timeout_s} s; autopilot {pilot}; mode {doc.get('mode')}, "
                 f"blockers {doc.get('engage_blockers')}, faults {doc.get('faults')}, "
                 f"history {doc.get('fault_history', [])[-6:]}, "
-                f"last refusal {doc.get('last_refusal')}"
+                f"last refusal {doc.get('last_refusal')}, phases so far {phases}"
             )
         await asyncio.sleep(0.02)
     return time.monotonic() - started
@@ -94,12 +102,15 @@ def docking_status(daemon: Daemon) -> dict[str, object]:
     return docking if isinstance(docking, dict) else {}
 
 
-async def test_the_daemon_docks_the_simulated_flatbed_into_the_troughs() -> None:
-    config = dock_config()
+@pytest.mark.parametrize("pose_loop", ["hl", "pc104"])
+async def test_the_daemon_docks_the_simulated_flatbed_into_the_troughs(pose_loop: str) -> None:
+    """With the angles from the high level, and with the PC104 twin closing the loop on
+    the pose and the expected pose the daemon sends it."""
+    config = dock_config(pose_loop=pose_loop)
     async with running(config) as (daemon, twins):
         # In the automatic zone with a good pose, the source lets the operator engage.
         await until(lambda: not daemon.core.engage_blockers(), 20.0, daemon, "engageable")
-        await twins.act("hold", button="engage", seconds=60.0)
+        await twins.act("hold", button="engage", seconds=HOLD_S)
         await until(lambda: daemon.core.state.mode is Mode.ENGAGED, 5.0, daemon, "ENGAGED")
         await twins.act("pedal", pedal="throttle", pct=100.0)
         phases: list[str] = []
@@ -110,13 +121,16 @@ async def test_the_daemon_docks_the_simulated_flatbed_into_the_troughs() -> None
                 phases.append(phase)
             return phase == "docked" and abs(twins.speed_mps()) < 0.005
 
-        await until(docked, DOCK_TIMEOUT_S, daemon, "docked and stopped")
+        took_s = await until(docked, DOCK_TIMEOUT_S, daemon, "docked and stopped", phases)
         await twins.act("pedal", pedal="throttle", pct=0.0)
         state = await twins.refresh()
         world = state["world"]
         pose = Pose2D(world["x_m"], world["y_m"], world["platform_yaw_rad"])
         params = DockingParams(front_end_forward_m=config.geometry.length_m / 2.0)
-        print(f"[dock] phases {phases}, final pose {pose}, status {docking_status(daemon)}")
+        print(
+            f"[dock] {pose_loop}: {took_s:.1f} s, phases {phases}, final pose {pose}, "
+            f"status {docking_status(daemon)}"
+        )
         assert "approach" in phases and phases[-1] == "docked"
         assert teeth_inside(pose, params), pose
         assert abs(math.degrees(world["platform_yaw_rad"])) < 0.3
