@@ -27,6 +27,7 @@ from appliance.config.simulated_calibration import simulated_calibration
 from appliance.logs import get_logger
 from appliance.sim.bench import SimBench
 from appliance.sim.bench_socket import serve_bench
+from appliance.sim.scanner_truth import with_simulated_scanners
 from appliance.simulator import Simulator, build_simulator
 from appliance.supervisor import Supervisor
 from drivers.pc104.endpoint import CanInterface
@@ -119,7 +120,10 @@ async def run_simulator(
             await asyncio.to_thread(
                 write_calibration,
                 calibration_file,
-                simulated_calibration(f"{config.name}-via-dbw-sim"),
+                # A flat-bed's scanners too: the other process cannot know their truth.
+                with_simulated_scanners(
+                    simulated_calibration(f"{config.name}-via-dbw-sim"), config
+                ),
             )
             text = daemon_config(config, simulator, can, calibration_file.resolve())
             await asyncio.to_thread(write_text_atomic, write_config, text)
