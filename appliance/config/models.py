@@ -170,6 +170,18 @@ class Devices(_Model):
     brake_serial: SerialEndpoint = SerialEndpoint(port="sim://brake")
     panel_serial: SerialEndpoint = SerialEndpoint(port="sim://panel")
 
+    @model_validator(mode="after")
+    def _scanners_apart(self) -> Self:
+        # Each real LMS111 listens on 2111 at its own address; two at one address and port
+        # would be one scanner read twice (and two simulated ones cannot both listen there).
+        left, right = self.lms111_left, self.lms111_right
+        if (left.host, left.port) == (right.host, right.port):
+            raise ValueError(
+                f"lms111_left and lms111_right are both at {left.host}:{left.port}: "
+                "give each scanner its own host or port"
+            )
+        return self
+
 
 class Rates(_Model):
     control_hz: float = Field(50.0, ge=10.0, le=200.0)

@@ -81,6 +81,15 @@ def test_simulated_boards_need_the_simulation() -> None:
     assert any("sim://steering" in m and "simulation.enabled" in m for m in problems.values())
 
 
+def test_two_scanners_at_one_address_and_port_are_refused() -> None:
+    problems = problems_of("[simulation]\nenabled = true\n[devices.lms111_right]\nport = 2111\n")
+    assert any(
+        "lms111_left and lms111_right are both at 127.0.0.1:2111" in m for m in problems.values()
+    )
+    # Two real scanners, each at its own address, both listen on 2111.
+    load_config("flatbed")
+
+
 def test_toml_syntax_error_is_one_clear_problem() -> None:
     problems = problems_of("[limits\nmax_speed_mps = 3\n")
     assert len(problems) == 1
