@@ -10,6 +10,13 @@ Figures:
   capsule), and near the launcher (the front end 2, 1 and 0.3 m from the board) with
   the localizer's (``LocalizerParams``: 0.6 m discs, 0.4 m capsule), which is what a
   docking run feeds it scan after scan;
+- the whole path the localizer runs per pair of scans: `LauncherLocalizer.update` of the
+  left and then the right scan (features in its own regions of interest, the prediction
+  with the board's motion, the cylinder association and updates, the board update), with
+  the localizer tracking (its first pose taken from the pair before timing starts), the
+  two scans 20 ms apart as in a docking run, 20 noisy pairs cycled; at 10 m, 2 m and 1 m
+  (from a standstill nearer than that the first pose cannot be had: the launcher is not in
+  view). Each line ends with how many of the timed pairs left the estimate ``ok``;
 - the error of a cylinder's centre with the vehicle 5 m before the board (both
   cylinders, both scanners: about 5 m to each), over many noisy renders: median and p95
   in millimetres, how often it was found, and the mean squared Mahalanobis error (2 for
@@ -27,6 +34,11 @@ import time
 
 import numpy as np
 
+from appliance.localization.launcher_localizer import (
+    LauncherLocalizer,
+    LocalizationStatus,
+    ScannerSetup,
+)
 from appliance.perception.features import DiscRoi, LineRoi, Roi, extract_features
 from appliance.sim import Site, beam_angles_rad, load_site, render_scan
 from benchmarks.stats import summarize
@@ -78,6 +90,41 @@ def _time_pairs(
     return durations_ms
 
 
+SCANNERS = ("left", "right")
+PAIR_PERIOD_S = 0.04  # 25 Hz scanners
+SCANNER_STAGGER_S = 0.02  # the right scan half a period after the left, as in `dbw sim dock`
+
+
+def _time_localizer_pairs(
+    site: Site, vehicle: Pose2D, repetitions: int = REPETITIONS
+) -> tuple[list[float], int]:
+    """Per pair of scans, the time of both `LauncherLocalizer.update` calls, and how many
+    timed pairs left the estimate ``ok``."""
+    rng = np.random.default_rng(0)
+    pairs = [
+        [render_scan(site, 0.0, vehicle, mount, rng=rng)[0] for mount in MOUNTS] for _ in range(20)
+    ]
+    localizer = LauncherLocalizer(
+        {name: ScannerSetup(mount) for name, mount in zip(SCANNERS, MOUNTS, strict=True)}
+    )
+
+    def update_pair(i: int) -> None:
+        t_s = i * PAIR_PERIOD_S
+        for k, (name, ranges) in enumerate(zip(SCANNERS, pairs[i % len(pairs)], strict=True)):
+            scan_t_s = t_s + k * SCANNER_STAGGER_S
+            localizer.update(name, ranges, SENSOR_ANGLES, scan_t_s, scan_t_s)
+
+    update_pair(0)  # the first pose: from here on the localizer tracks
+    durations_ms, ok = [], 0
+    for i in range(1, repetitions + 1):
+        started = time.perf_counter()
+        update_pair(i)
+        durations_ms.append((time.perf_counter() - started) * 1e3)
+        now_s = i * PAIR_PERIOD_S + SCANNER_STAGGER_S
+        ok += localizer.estimate(now_s).status is LocalizationStatus.OK
+    return durations_ms, ok
+
+
 def _centre_errors(site: Site, vehicle: Pose2D, renders: int) -> tuple[list[float], float, float]:
     """Centre errors (mm) of both cylinders in both scanners, the fraction found, and
     the mean squared Mahalanobis error under the reported covariance."""
@@ -121,6 +168,10 @@ def main(argv: list[str] | None = None) -> None:
         rois = None if sizes is None else _rois(vehicle, sizes)
         durations_ms = _time_pairs(launcher, vehicle, rois, repetitions)
         print(summarize(f"two 1081-beam scans -> features, {label}", durations_ms, "ms"))
+    for distance_m in (10.0, 2.0, 1.0):  # nearer, the first pose needs more of the board
+        durations_ms, ok = _time_localizer_pairs(launcher, _vehicle(distance_m), repetitions)
+        label = f"two 1081-beam scans -> features -> EKF (LauncherLocalizer), {distance_m:g} m"
+        print(f"{summarize(label, durations_ms, 'ms')}, estimate ok after {ok}")
     errors_mm, found, nees = _centre_errors(launcher, _vehicle(5.0), 75 if quick else 300)
     p50, p95 = np.percentile(errors_mm, [50, 95])
     print(

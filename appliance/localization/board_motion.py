@@ -21,6 +21,7 @@ from __future__ import annotations
 import math
 from collections import deque
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
@@ -104,15 +105,30 @@ def motion_between(
     return BodyMotion(velocity, covariance / (dt_s * dt_s), correlation_time_s=dt_s)
 
 
+class _WindowMotion(NamedTuple):
+    """One scanner's window's motion, kept while the window's ends stay the same."""
+
+    older: BoardSighting
+    newer: BoardSighting
+    motion: BodyMotion | None
+    information: FloatArray | None  # the inverse of the motion's covariance
+
+
 class BoardMotion:
-    """Keeps each scanner's recent sightings; ``motion`` is the fused velocity."""
+    """Keeps each scanner's recent sightings; ``motion`` is the fused velocity.
+
+    ``motion`` is asked for at every scan, and a scan changes one scanner's window: each
+    window's motion is kept until its first or last sighting changes (the same sightings
+    give the same figures, so nothing but the time is saved)."""
 
     def __init__(self, params: BoardMotionParams | None = None) -> None:
         self.params = params or BoardMotionParams()
         self._history: dict[str, deque[BoardSighting]] = {}
+        self._window_motion: dict[str, _WindowMotion] = {}
 
     def reset(self) -> None:
         self._history.clear()
+        self._window_motion.clear()
 
     def update(self, sensor: str, sighting: BoardSighting) -> None:
         history = self._history.setdefault(sensor, deque())
@@ -125,21 +141,32 @@ class BoardMotion:
     def motion(self, now_s: float) -> BodyMotion | None:
         """The inverse-covariance fusion of every scanner's window, or None when no
         scanner has two recent sightings."""
-        estimates: list[BodyMotion] = []
-        for history in self._history.values():
+        estimates: list[tuple[BodyMotion, FloatArray]] = []  # with their information
+        for sensor, history in self._history.items():
             if len(history) < 2 or now_s - history[-1].t_s > self.params.max_age_s:
                 continue
             if history[-1].t_s - history[0].t_s > self.params.max_age_s:
                 continue
-            found = motion_between(history[0], history[-1], self.params)
-            if found is not None:
-                estimates.append(found)
+            found = self._window(sensor, history[0], history[-1])
+            if found.motion is not None and found.information is not None:
+                estimates.append((found.motion, found.information))
         if not estimates:
             return None
         if len(estimates) == 1:
-            return estimates[0]
-        information = sum(np.linalg.inv(e.covariance) for e in estimates)
-        covariance = np.linalg.inv(information)
-        weighted = sum(np.linalg.inv(e.covariance) @ e.velocity for e in estimates)
-        correlation_s = max(e.correlation_time_s for e in estimates)
+            return estimates[0][0]
+        information = sum(info for _, info in estimates)
+        covariance = np.asarray(np.linalg.inv(information), dtype=np.float64)
+        weighted = sum(info @ e.velocity for e, info in estimates)
+        correlation_s = max(e.correlation_time_s for e, _ in estimates)
         return BodyMotion(covariance @ weighted, covariance, correlation_s)
+
+    def _window(self, sensor: str, older: BoardSighting, newer: BoardSighting) -> _WindowMotion:
+        kept = self._window_motion.get(sensor)
+        if kept is not None and kept.older is older and kept.newer is newer:
+            return kept
+        found = motion_between(older, newer, self.params)
+        information = (
+            None if found is None else np.asarray(np.linalg.inv(found.covariance), dtype=np.float64)
+        )
+        kept = self._window_motion[sensor] = _WindowMotion(older, newer, found, information)
+        return kept

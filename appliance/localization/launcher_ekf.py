@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import math
 from collections import Counter
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -134,6 +134,12 @@ def board_measurement(state: FloatArray) -> tuple[FloatArray, FloatArray]:
 
 def _residual(z: FloatArray, z_hat: FloatArray) -> FloatArray:
     return np.array([z[0] - z_hat[0], wrap_angle_rad(float(z[1] - z_hat[1]))])
+
+
+def _cylinder_model(
+    landmark_xy: tuple[float, float], sensor: Pose2D
+) -> Callable[[FloatArray], tuple[FloatArray, FloatArray]]:
+    return lambda state: cylinder_measurement(state, landmark_xy, sensor)
 
 
 class LauncherEkf:
@@ -249,7 +255,36 @@ class LauncherEkf:
     ) -> float:
         """The NIS a cylinder measurement would have against ``landmark_xy``, for
         association: the localizer gives a detected cylinder to the landmark it fits best."""
-        z_hat, h = cylinder_measurement(self.state, landmark_xy, sensor)
+        return self._nis(z, r_cov, _cylinder_model(landmark_xy, sensor))
+
+    def update_nearest_cylinder(
+        self,
+        z: FloatArray,
+        r_cov: FloatArray,
+        landmarks_xy: Sequence[tuple[float, float]],
+        sensor: Pose2D,
+    ) -> tuple[int, UpdateOutcome]:
+        """`update_cylinder` with the landmark of the smallest `innovation` (the first of
+        equals): its index and the outcome. The same as choosing with ``innovation`` and
+        then updating, without working out the chosen one's NIS twice."""
+        if not landmarks_xy:
+            raise ValueError("no landmark to associate the cylinder with")
+        z = np.asarray(z, dtype=float)
+        r_cov = np.asarray(r_cov, dtype=float)
+        models = [_cylinder_model(xy, sensor) for xy in landmarks_xy]
+        if z.shape != (2,) or r_cov.shape != (2, 2) or not np.all(np.isfinite(z)):
+            return 0, self._update("cylinder", z, r_cov, models[0])
+        nis = [self._nis(z, r_cov, model) for model in models]
+        best = min(range(len(nis)), key=nis.__getitem__)
+        return best, self._update("cylinder", z, r_cov, models[best], known_nis=nis[best])
+
+    def _nis(
+        self,
+        z: FloatArray,
+        r_cov: FloatArray,
+        model: Callable[[FloatArray], tuple[FloatArray, FloatArray]],
+    ) -> float:
+        z_hat, h = model(self.state)
         y = _residual(np.asarray(z, dtype=float), z_hat)
         s = h @ self._kf.P @ h.T + r_cov
         return float(y @ np.linalg.solve(s, y))
@@ -260,20 +295,22 @@ class LauncherEkf:
         z: FloatArray,
         r_cov: FloatArray,
         model: Callable[[FloatArray], tuple[FloatArray, FloatArray]],
+        known_nis: float | None = None,
     ) -> UpdateOutcome:
+        """``known_nis``: the NIS of ``model`` at the present state, already worked out."""
         if self.t_s is None:
             raise RuntimeError("update before reset: the filter has no initial pose")
         if z.shape != (2,) or r_cov.shape != (2, 2) or not np.all(np.isfinite(z)):
             self.rejected[f"{kind}:malformed"] += 1
             return UpdateOutcome(False, kind, math.nan, "malformed measurement")
-        z_hat, h = model(self.state)
-        y = _residual(z, z_hat)
-        s = h @ self._kf.P @ h.T + r_cov
-        try:
-            nis = float(y @ np.linalg.solve(s, y))
-        except np.linalg.LinAlgError:
-            self.rejected[f"{kind}:singular"] += 1
-            return UpdateOutcome(False, kind, math.nan, "singular innovation covariance")
+        if known_nis is not None:
+            nis = known_nis
+        else:
+            try:
+                nis = self._nis(z, r_cov, model)
+            except np.linalg.LinAlgError:
+                self.rejected[f"{kind}:singular"] += 1
+                return UpdateOutcome(False, kind, math.nan, "singular innovation covariance")
         self.last_nis[kind] = nis
         if not nis <= self._gate_2d:
             self.rejected[kind] += 1

@@ -132,6 +132,34 @@ def _polar(circle: CircleFeature, sensor: Pose2D) -> tuple[FloatArray, FloatArra
     return z, jac @ circle.covariance @ jac.T
 
 
+class _Verdicts:
+    """One landmark's verdicts (time, accepted, NIS) over the disagreement window, with the
+    counts ``estimate`` reads kept as they come and go (it asks at every control cycle)."""
+
+    def __init__(self) -> None:
+        self.entries: deque[tuple[float, bool, float]] = deque()
+        self.failed = 0  # not accepted
+        self.missed = 0  # not accepted because not found (NIS nan)
+        self.finite_nis: deque[float] = deque()  # the finite NIS values, oldest first
+
+    def add(self, t_s: float, accepted: bool, nis: float, window_s: float) -> None:
+        self._count((t_s, accepted, nis), 1)
+        self.entries.append((t_s, accepted, nis))
+        if math.isfinite(nis):
+            self.finite_nis.append(nis)
+        while self.entries and t_s - self.entries[0][0] > window_s:
+            oldest = self.entries.popleft()
+            self._count(oldest, -1)
+            if math.isfinite(oldest[2]):
+                self.finite_nis.popleft()
+
+    def _count(self, entry: tuple[float, bool, float], sign: int) -> None:
+        _, accepted, nis = entry
+        if not accepted:
+            self.failed += sign
+            self.missed += sign * math.isnan(nis)
+
+
 class LauncherLocalizer:
     def __init__(
         self, scanners: Mapping[str, ScannerSetup], params: LocalizerParams | None = None
@@ -166,7 +194,7 @@ class LauncherLocalizer:
         self._last_accept_s: float | None = None
         self._last_cylinder_s: float | None = None
         self._last_scan_s: dict[str, float] = {}
-        self._verdicts: dict[str, deque[tuple[float, bool, float]]] = {}
+        self._verdicts: dict[str, _Verdicts] = {}
         self.init_reason = "no scan yet"
         self.last_features: dict[str, ScanFeatures] = {}
 
@@ -264,19 +292,16 @@ class LauncherLocalizer:
         )  # fmt: skip
         self.last_features[sensor] = features
         self.feature_rejections.update(features.rejections)
-        range_var = setup.systematic_range_sigma_m**2
-        yaw_var = setup.systematic_yaw_sigma_rad**2
+        systematic = np.diag([setup.systematic_range_sigma_m**2, setup.systematic_yaw_sigma_rad**2])
         # Per landmark, this scan's best: one detection accepted is the landmark seen,
         # whatever else near it (a post, a person) was kept out.
         seen: dict[str, tuple[bool, float]] = {}
+        landmarks_xy = [(lm.x_m, lm.y_m) for lm in p.launcher.cylinders]
         for circle in features.circles:
             z, cov = _polar(circle, pose_in_of)
-            r_cov = cov + np.diag([range_var, yaw_var])
-            best = min(
-                p.launcher.cylinders,
-                key=lambda lm: self.ekf.innovation(z, r_cov, (lm.x_m, lm.y_m), pose_in_of),
-            )
-            outcome = self.ekf.update_cylinder(z, r_cov, (best.x_m, best.y_m), pose_in_of)
+            r_cov = cov + systematic
+            index, outcome = self.ekf.update_nearest_cylinder(z, r_cov, landmarks_xy, pose_in_of)
+            best = p.launcher.cylinders[index]
             accepted, nis = seen.get(best.name, (False, math.inf))
             seen[best.name] = (accepted or outcome.accepted, min(nis, outcome.nis))
             if outcome.accepted:
@@ -285,14 +310,12 @@ class LauncherLocalizer:
             if landmark.name not in seen and self._in_view(landmark, pose_in_of):
                 seen[landmark.name] = (False, math.nan)  # predicted in view, not found
         for name, (accepted, nis) in seen.items():
-            verdicts = self._verdicts.setdefault(name, deque())
-            verdicts.append((t_s, accepted, nis))
-            while verdicts and t_s - verdicts[0][0] > p.disagreement_window_s:
-                verdicts.popleft()
+            verdicts = self._verdicts.setdefault(name, _Verdicts())
+            verdicts.add(t_s, accepted, nis, p.disagreement_window_s)
         board = self._board_line(features.lines)
         if board is not None:
             z = np.array([board.r_m, board.alpha_rad])
-            r_cov = np.asarray(board.covariance) + np.diag([range_var, yaw_var])
+            r_cov = np.asarray(board.covariance) + systematic
             if self.ekf.update_board(z, r_cov).accepted:
                 self._last_accept_s = t_s
             self.motion.update(sensor, self._sighting(board, pose_in_of, t_s))
@@ -342,16 +365,15 @@ class LauncherLocalizer:
         p = self.params
         found = []
         for name, verdicts in sorted(self._verdicts.items()):
-            if len(verdicts) < p.disagreement_min_sightings:
+            count = len(verdicts.entries)
+            if count < p.disagreement_min_sightings:
                 continue
-            failed = [nis for _, accepted, nis in verdicts if not accepted]
-            nis = [value for _, _, value in verdicts if math.isfinite(value)]
+            nis = verdicts.finite_nis
             mean_nis = sum(nis) / len(nis) if nis else 0.0
-            if len(failed) > p.disagreement_fraction * len(verdicts):
-                missed = sum(math.isnan(value) for value in failed)
+            if verdicts.failed > p.disagreement_fraction * count:
                 found.append(
                     f"{name} not seen where the map puts it"
-                    if missed > len(failed) / 2
+                    if verdicts.missed > verdicts.failed / 2
                     else f"{name} disagrees with the map"
                 )
             elif mean_nis > p.disagreement_mean_nis:

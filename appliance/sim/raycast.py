@@ -81,24 +81,52 @@ def nearest_hits(
     Returned ranges beyond ``max_range_m`` are reported as 0 (no echo), see module doc.
     """
     angles = np.asarray(angles_rad, dtype=np.float64).ravel()
-    beams = angles.size
     segs = _as_rows(segments, 4, "segments")
     circs = _as_rows(circles, 3, "circles")
-    ranges = np.full(beams, np.inf)
-    index = np.full(beams, NO_HIT, dtype=np.int64)
+    if angles.size == 0:
+        return RayHits(np.zeros(0), np.full(0, NO_HIT, dtype=np.int64))
+    if inside_any_circle(origin_x_m, origin_y_m, circs):
+        return _blinded(angles.size)
+    return nearest_hits_along(
+        origin_x_m, origin_y_m, beam_directions(angles), segs, circs, max_range_m
+    )
+
+
+def beam_directions(angles_rad: NDArray[np.float64]) -> NDArray[np.float64]:
+    """(beams, 2) unit vectors of the (1-D) angles, for `nearest_hits_along`."""
+    directions = np.empty((angles_rad.shape[0], 2))  # np.stack costs more than the sines
+    # Contiguous results copied in: into a strided column numpy may take another (scalar)
+    # sine and cosine, which may round differently.
+    directions[:, 0] = np.cos(angles_rad)
+    directions[:, 1] = np.sin(angles_rad)
+    return directions
+
+
+def _blinded(beams: int) -> RayHits:
+    index = np.empty(beams, dtype=np.int64)
+    index.fill(NO_HIT)
+    return RayHits(np.zeros(beams), index)
+
+
+def nearest_hits_along(
+    origin_x_m: float,
+    origin_y_m: float,
+    directions: NDArray[np.float64],
+    segs: NDArray[np.float64],
+    circs: NDArray[np.float64],
+    max_range_m: float,
+) -> RayHits:
+    """`nearest_hits` of beams given as (beams, 2) unit ``directions`` (`beam_directions`),
+    so that casts of one scan against several shape sets compute them once. ``segs`` and
+    ``circs`` are (N, 4) and (M, 3) float64 rows (either may have none), and the origin
+    is outside every circle (`inside_any_circle`): a blinded scanner is the caller's."""
+    beams = directions.shape[0]
+    ranges = np.empty(beams)
+    ranges.fill(np.inf)
+    index = np.empty(beams, dtype=np.int64)
+    index.fill(NO_HIT)
     if beams == 0:
         return RayHits(np.zeros(0), index)
-
-    if circs.shape[0]:
-        mx = origin_x_m - circs[:, 0]
-        my = origin_y_m - circs[:, 1]
-        outside = mx * mx + my * my - circs[:, 2] * circs[:, 2]
-        if np.any(outside <= 0.0):
-            return RayHits(np.zeros(beams), index)  # blinded: inside an object
-
-    directions = np.empty((beams, 2))  # (beams, 2) unit; np.stack costs more than the sines
-    directions[:, 0] = np.cos(angles)
-    directions[:, 1] = np.sin(angles)
 
     if segs.shape[0] > _CULL_ABOVE:
         keep = np.flatnonzero(point_segment_distance_m(origin_x_m, origin_y_m, segs) <= max_range_m)
@@ -140,7 +168,7 @@ class _Scratch(threading.local):
     def __init__(self) -> None:
         self.floats: dict[str, NDArray[np.float64]] = {}
         self.flags: dict[str, NDArray[np.bool_]] = {}
-        self.numbers: NDArray[np.intp] = np.arange(0)
+        self.starts: dict[int, NDArray[np.intp]] = {}
         self.shapes: dict[int, NDArray[np.intp]] = {}
 
     def float_array(self, key: str, rows: int, cols: int) -> NDArray[np.float64]:
@@ -149,13 +177,14 @@ class _Scratch(threading.local):
             buffer = self.floats[key] = np.empty(rows * cols, dtype=np.float64)
         return buffer[: rows * cols].reshape(rows, cols)
 
-    def beam_numbers(self, beams: int) -> NDArray[np.intp]:
-        """``np.arange(beams)``, kept (read-only) for the next scan of as many beams."""
-        numbers = self.numbers
-        if numbers.size != beams:
-            numbers = self.numbers = np.arange(beams)
-            numbers.flags.writeable = False
-        return numbers
+    def row_starts(self, rows: int, cols: int) -> NDArray[np.intp]:
+        """Where each row of a C-ordered (rows, cols) array starts in its flat form
+        (``np.arange(rows) * cols``), kept (read-only) per column count."""
+        starts = self.starts.get(cols)
+        if starts is None or starts.size < rows:
+            starts = self.starts[cols] = np.arange(max(rows, 2048)) * cols
+            starts.flags.writeable = False
+        return starts[:rows]
 
     def shape_numbers(self, count: int) -> NDArray[np.intp]:
         """``np.arange(count)`` for a small count, kept (read-only)."""
@@ -198,8 +227,14 @@ def _take_nearest(
     """
     np.multiply(invalid, np.inf, out=penalty)
     np.fmax(t, penalty, out=t)
+    if t.shape[1] == 1:  # one shape (a walker): nothing to choose between
+        only_t = t[:, 0]
+        closer = only_t < ranges
+        ranges[closer] = only_t[closer]
+        index[closer] = shape_ids[0]
+        return
     best = np.argmin(t, axis=1)
-    best_t = t[_SCRATCH.beam_numbers(t.shape[0]), best]
+    best_t = t.ravel().take(best + _SCRATCH.row_starts(*t.shape))  # t[rows, best]
     closer = best_t < ranges
     ranges[closer] = best_t[closer]
     index[closer] = shape_ids[best[closer]]
@@ -239,14 +274,13 @@ def _nearest_segment_hits(
         np.reciprocal(denom, out=denom)
         np.multiply(s, denom, out=s)
         np.multiply(denom, w_cross_e, out=t)
-    s -= 0.5
-    np.abs(s, out=s)
-    np.less_equal(s, 0.5, out=check)  # 0 <= s <= 1: within the segment
-    ok &= check
-    np.greater_equal(t, 0.0, out=check)  # not behind the origin
-    ok &= check
-    np.logical_not(ok, out=ok)
-    with np.errstate(invalid="ignore"):
+        s -= 0.5
+        np.abs(s, out=s)
+        np.less_equal(s, 0.5, out=check)  # 0 <= s <= 1: within the segment
+        ok &= check
+        np.greater_equal(t, 0.0, out=check)  # not behind the origin
+        ok &= check
+        np.logical_not(ok, out=ok)
         _take_nearest(t, ok, denom, shape_ids, ranges, index)
 
 
@@ -286,13 +320,16 @@ def _nearest_circle_hits(
 
 
 def inside_any_circle(x_m: float, y_m: float, circles: NDArray[np.float64] | None) -> bool:
-    """Whether the point is inside (or on) a circle: a scanner there is blinded."""
+    """Whether the point is inside (or on) a circle: a scanner there is blinded.
+
+    In Python floats: a site has a handful of circles, and the arithmetic is the same
+    (each operation rounded once, as numpy's element-wise one is)."""
     circs = _as_rows(circles, 3, "circles")
-    if not circs.shape[0]:
-        return False
-    mx = x_m - circs[:, 0]
-    my = y_m - circs[:, 1]
-    return bool(np.any(mx * mx + my * my - circs[:, 2] * circs[:, 2] <= 0.0))
+    for cx, cy, radius in circs.tolist():
+        mx, my = x_m - cx, y_m - cy
+        if mx * mx + my * my - radius * radius <= 0.0:
+            return True
+    return False
 
 
 def nearer_of(first: RayHits, second: RayHits, second_offset: int) -> RayHits:

@@ -267,7 +267,7 @@ def first_strong_echo(
     sorted_m = far.ravel()[flat_order]
     sorted_energy = np.where(hit, energy, 0.0).ravel()[flat_order]
     starts = np.empty(beams * returns, dtype=np.bool_)
-    np.greater(np.diff(sorted_m), pulse_merge_m, out=starts[1:])
+    np.greater(sorted_m[1:] - sorted_m[:-1], pulse_merge_m, out=starts[1:])  # np.diff, cheaper
     starts[row_starts] = True
     # One bin per echo over the whole array: row r's echoes are r * returns + 0, 1, ...
     echo = np.cumsum(starts) - 1

@@ -33,9 +33,11 @@ from numpy.typing import NDArray
 from appliance.sim.raycast import (
     NO_HIT,
     RayHits,
+    beam_directions,
     inside_any_circle,
     nearer_of,
     nearest_hits,
+    nearest_hits_along,
     remission_of,
 )
 from appliance.sim.scanner_errors import (
@@ -128,17 +130,23 @@ class RayCache:
         return hits
 
 
+_NO_SEGMENTS = np.empty((0, 4))
+_NO_SEGMENTS.flags.writeable = False
+
+
 def _cast_with_cache(
     cache: RayCache,
     site: Site,
     shapes: ShapeArrays,
     pose: Pose2D,
     world_angles: Callable[[], NDArray[np.float64]],
+    directions: Callable[[], NDArray[np.float64]],
     layout: tuple[float, float, float],
     max_range_m: float,
 ) -> tuple[RayHits, NDArray[np.float64]]:
     """``nearest_hits`` over ``shapes`` with the static ones from ``cache``; ``world_angles``
-    is only called (and should be cached by the caller) when something must be cast."""
+    and their ``directions`` are only called (and should be cached by the caller) when
+    something must be cast: the static site and the walkers are cast along the same ones."""
     static = site.static_shapes()
     n_static = static.segments.shape[0] + static.circles.shape[0]
     movers = shapes.circles[static.circles.shape[0] :]
@@ -147,15 +155,22 @@ def _cast_with_cache(
         beams = len(world_angles())  # blinded by a walker: no echo at all
         hits = RayHits(np.zeros(beams), np.full(beams, NO_HIT, dtype=np.int64))
     else:
-        hits = cache.static_hits(
-            static,
-            key,
-            lambda: nearest_hits(
-                pose.x_m, pose.y_m, world_angles(), static.segments, static.circles, max_range_m
-            ),
-        )
-        if movers.shape[0] and not inside_any_circle(pose.x_m, pose.y_m, static.circles):
-            moving = nearest_hits(pose.x_m, pose.y_m, world_angles(), None, movers, max_range_m)
+        inside_static = inside_any_circle(pose.x_m, pose.y_m, static.circles)
+
+        def cast_static() -> RayHits:
+            if inside_static:
+                return nearest_hits(
+                    pose.x_m, pose.y_m, world_angles(), static.segments, static.circles, max_range_m
+                )  # blinded
+            return nearest_hits_along(
+                pose.x_m, pose.y_m, directions(), static.segments, static.circles, max_range_m
+            )
+
+        hits = cache.static_hits(static, key, cast_static)
+        if movers.shape[0] and not inside_static:
+            moving = nearest_hits_along(
+                pose.x_m, pose.y_m, directions(), _NO_SEGMENTS, movers, max_range_m
+            )
             hits = nearer_of(hits, moving, n_static)
     n_segments, n_circles = shapes.segments.shape[0], shapes.circles.shape[0]
     remission = remission_of(
@@ -204,10 +219,14 @@ def render_scan(
         angles: NDArray[np.float64] = device_angles + (pose.yaw_rad - DEVICE_FORWARD_RAD)
         return angles
 
+    @functools.cache
+    def directions() -> NDArray[np.float64]:
+        return beam_directions(world_angles())
+
     if cache is not None:
         layout = (start_angle_rad, stop_angle_rad, step_rad)
         hits, remission = _cast_with_cache(
-            cache, site, shapes, pose, world_angles, layout, max_range_m
+            cache, site, shapes, pose, world_angles, directions, layout, max_range_m
         )
     else:
         hits = nearest_hits(

@@ -7,7 +7,15 @@ import math
 import numpy as np
 import pytest
 
-from appliance.sim.raycast import NO_HIT, cast_rays, nearer_of, nearest_hits
+from appliance.sim import load_site
+from appliance.sim.raycast import (
+    NO_HIT,
+    beam_directions,
+    cast_rays,
+    nearer_of,
+    nearest_hits,
+    nearest_hits_along,
+)
 
 
 def _segments(*rows: tuple[float, float, float, float]) -> np.ndarray:
@@ -177,3 +185,27 @@ def test_results_do_not_alias_the_scratch_buffers() -> None:
     first, _ = cast_rays(0.0, 0.0, STRAIGHT, WALL_AT_5, None, 20.0)
     cast_rays(0.0, 0.0, STRAIGHT, _segments((2.0, -1.0, 2.0, 1.0)), None, 20.0)
     assert first[0] == pytest.approx(5.0)
+
+
+def test_casting_along_precomputed_directions_is_casting_the_angles() -> None:
+    """The scanner model casts the static site and the walkers along one scan's
+    directions: the same bits as casting each from the angles."""
+    shapes = load_site("launcher").shapes_at(3.0)
+    angles = np.linspace(-math.pi, math.pi, 1081)
+    directions = beam_directions(angles)
+    for segments, circles in (
+        (shapes.segments, shapes.circles),
+        (shapes.segments, None),
+        (None, shapes.circles[-1:]),  # one shape: the walker alone
+    ):
+        expected = nearest_hits(-9.0, 0.5, angles, segments, circles, 20.0)
+        found = nearest_hits_along(
+            -9.0,
+            0.5,
+            directions,
+            np.empty((0, 4)) if segments is None else segments,
+            np.empty((0, 3)) if circles is None else circles,
+            20.0,
+        )
+        assert found.ranges_m.tobytes() == expected.ranges_m.tobytes()
+        assert found.hit_index.tobytes() == expected.hit_index.tobytes()
