@@ -106,7 +106,7 @@ class Pc104Client:
         self._state = HighLevelState.STANDBY
         self._pose: HlPose | None = None
         self._expected: HlExpectedPose | None = None
-        self._pose_s = self._expected_s = -math.inf
+        self._pose_s = self._expected_s = self._poses_sent_s = -math.inf
         self._counters = {protocol.spec_for(t).frame_id: 0 for t in _SENT}
         self._link: BusLink | None = None
         self._send_loss: LinkLost | None = None  # a send for a caller found the link lost
@@ -330,11 +330,18 @@ class Pc104Client:
             self._ep_hold.clear(now_s)
         self._last_command_sent_s = now_s
         self._transmit(link, command, now_s)
+        # The poses ride with the command, but at their own period at most: a control loop
+        # that sends commands faster (a command frame goes out early on a change) must not
+        # make them faster than the DBC's 20 ms.
+        if now_s - self._poses_sent_s < 0.75 * self.params.command_period_s:
+            return
         timeout_s = self.params.command_timeout_s
         if self._pose is not None and now_s - self._pose_s <= timeout_s:
             self._transmit(link, self._pose, now_s)
+            self._poses_sent_s = now_s
         if self._expected is not None and now_s - self._expected_s <= timeout_s:
             self._transmit(link, self._expected, now_s)
+            self._poses_sent_s = now_s
 
     def _transmit(self, link: BusLink, message: HlMessage, now_s: float) -> None:
         frame_id = protocol.spec_for(type(message)).frame_id

@@ -31,7 +31,16 @@ from appliance.config.models import CanEndpoint, VehicleConfig
 from drivers.pc104 import protocol
 from drivers.pc104.client import Pc104Client
 from drivers.pc104.endpoint import CanInterface
-from drivers.pc104.messages import ControlSource, MotionCommand, MotionPattern, Pc104Status
+from drivers.pc104.messages import (
+    ControlSource,
+    HlExpectedPose,
+    HlPose,
+    MotionCommand,
+    MotionPattern,
+    Pc104Status,
+    PoseState,
+    SteeringLoop,
+)
 
 pytestmark = pytest.mark.vcan
 
@@ -90,7 +99,14 @@ async def drive_until_moving(client: Pc104Client, detail: Callable[[], str]) -> 
             pytest.fail(f"the vehicle did not move; {detail()}")
         holding = client.health().holding_stop
         client.send_command(MotionCommand.stop() if holding else FORWARD)
+        # Every frame of the contract goes on the bus: the pose frames too, with the
+        # set-points still the HL's (a PC104 following them ignores the poses).
+        client.send_pose(POSE, EXPECTED)
         await asyncio.sleep(0.01)
+
+
+POSE = HlPose(-20.0, 0.1, 0.0, PoseState.OK)
+EXPECTED = HlExpectedPose(-6.0, 0.0, 0.0, SteeringLoop.HL)
 
 
 def vcan_config(channel: str) -> VehicleConfig:
