@@ -10,6 +10,9 @@ the configured mounts: the alignment gate then finds the estimate too uncertain 
 and refuses), the same with the gate's certainty check off (what the uncalibrated error
 would do at the troughs), and the ideal scanner.
 
+Run: ``python -m benchmarks.bench_docking [RUNS [WORKERS [CONDITION ...]]]`` (100 starts,
+2 workers and every condition by default; a condition by its name as printed).
+
 Figures per condition: success rate (docked, both teeth inside their troughs, no tooth at
 a trough misaligned), the lateral error at the teeth and the heading error (median, p95,
 max), pattern switches per approach (median, max), attempts, time per approach, and the
@@ -91,11 +94,16 @@ def main(argv: list[str] | None = None) -> None:
     args = sys.argv[1:] if argv is None else argv
     runs = int(args[0]) if args else 100
     workers = int(args[1]) if len(args) > 1 else 2
+    chosen = args[2:] or list(CONDITIONS)  # e.g. "realistic, calibrated" alone
+    unknown = [name for name in chosen if name not in CONDITIONS]
+    if unknown:
+        sys.exit(f"unknown condition {unknown}; the conditions are {list(CONDITIONS)}")
     jobs = starts(runs)
     print(f"docking from {runs} random starts (10 m out, ±1 m lateral, ±5° heading)")
     print(f"{workers} worker processes")
     with ProcessPoolExecutor(max_workers=workers) as pool:
-        for name, base in CONDITIONS.items():
+        for name in chosen:
+            base = CONDITIONS[name]
             results = list(pool.map(_one, [(base, *job) for job in jobs]))
             report(name, results)
 
