@@ -69,10 +69,6 @@ class DockingParams:
     lateral_near_m: float = 0.003
     exit_fraction: float = 0.4
     min_dwell_s: float = 2.0
-    # Within this gap an oblique correction is kept to the troughs, its crab angle a trim
-    # that holds the front end on the axis, instead of going back to straight and out
-    # again at the next few millimetres: two switches saved each time, none spent.
-    oblique_to_the_end_gap_m: float = 1.5
     # A correction starts only when its error has stood for this long: one jumpy
     # estimate near the launcher must not cost two switches.
     enter_persist_s: float = 0.5
@@ -280,8 +276,7 @@ class DockingController:
         else:  # (c): keep the current correction until it is fine, start one when bad
             current = self.pattern
             correcting = (current is MotionPattern.REAR_STEER and not heading_fine) or (
-                current is MotionPattern.OBLIQUE
-                and (not lateral_fine or gap <= p.oblique_to_the_end_gap_m)
+                current is MotionPattern.OBLIQUE and not lateral_fine
             )
             if correcting:
                 wanted = current
