@@ -106,7 +106,7 @@ class Pc104Client:
         self._state = HighLevelState.STANDBY
         self._pose: HlPose | None = None
         self._expected: HlExpectedPose | None = None
-        self._pose_s = self._expected_s = self._poses_sent_s = -math.inf
+        self._poses_set_s = self._poses_sent_s = -math.inf
         self._counters = {protocol.spec_for(t).frame_id: 0 for t in _SENT}
         self._link: BusLink | None = None
         self._send_loss: LinkLost | None = None  # a send for a caller found the link lost
@@ -170,7 +170,7 @@ class Pc104Client:
         if expected is not None:
             protocol.encode(expected, 0)
         self._pose, self._expected = pose, expected
-        self._pose_s = self._expected_s = now
+        self._poses_set_s = now
 
     def set_state(self, state: HighLevelState) -> None:
         """The high-level state announced in HL_Heartbeat; a change is sent at once."""
@@ -335,13 +335,12 @@ class Pc104Client:
         # make them faster than the DBC's 20 ms.
         if now_s - self._poses_sent_s < 0.75 * self.params.command_period_s:
             return
-        timeout_s = self.params.command_timeout_s
-        if self._pose is not None and now_s - self._pose_s <= timeout_s:
-            self._transmit(link, self._pose, now_s)
-            self._poses_sent_s = now_s
-        if self._expected is not None and now_s - self._expected_s <= timeout_s:
-            self._transmit(link, self._expected, now_s)
-            self._poses_sent_s = now_s
+        if now_s - self._poses_set_s > self.params.command_timeout_s:
+            return
+        for message in (self._pose, self._expected):
+            if message is not None:
+                self._transmit(link, message, now_s)
+                self._poses_sent_s = now_s
 
     def _transmit(self, link: BusLink, message: HlMessage, now_s: float) -> None:
         frame_id = protocol.spec_for(type(message)).frame_id

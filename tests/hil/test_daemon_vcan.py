@@ -97,6 +97,17 @@ def wait_for(
         time.sleep(0.05)
 
 
+def stop_all(procs: list[subprocess.Popen[str]]) -> None:
+    """SIGTERM the processes still running, newest first; kill one that takes over 10 s."""
+    for proc in reversed(procs):
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGTERM)
+            try:
+                proc.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+
+
 def pc104_link(log: Path) -> str:
     beats = heartbeats(log)
     return str(beats[-1]["links"]["pc104"]) if beats else ""
@@ -188,13 +199,7 @@ def test_daemon_and_simulated_vehicle_over_vcan(vcan_channel: str, tmp_path: Pat
         tail = "\n".join(daemon_log.read_text().splitlines()[-15:])
         assert code == 0, f"daemon exit status {code}; log tail:\n{tail}"
     finally:
-        for proc in reversed(procs):
-            if proc.poll() is None:
-                proc.send_signal(signal.SIGTERM)
-                try:
-                    proc.wait(timeout=10)
-                except subprocess.TimeoutExpired:
-                    proc.kill()
+        stop_all(procs)
         dump_out.close()
 
     # The recorded bus, checked independently of the daemon's code.

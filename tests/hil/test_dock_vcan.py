@@ -33,7 +33,7 @@ from appliance.control_protocol import ControlSocketError
 from appliance.guidance.docking import DockingParams, teeth_inside
 from drivers.geometry import Pose2D
 from drivers.pc104 import protocol
-from tests.hil.test_daemon_vcan import _LOG_LINE, PROJECT_ROOT, dbw, tool, wait_for
+from tests.hil.test_daemon_vcan import _LOG_LINE, PROJECT_ROOT, dbw, stop_all, tool, wait_for
 from tests.hil.test_pc104_vcan import crc8_sae_j1850_bitwise
 from tests.runtime.test_daemon_control import free_port
 
@@ -213,13 +213,7 @@ def test_a_docking_approach_over_vcan(vcan_channel: str, tmp_path: Path) -> None
         code = daemon.wait(timeout=15)
         assert code == 0, "\n".join(daemon_log.read_text().splitlines()[-15:])
     finally:
-        for proc in reversed(procs):
-            if proc.poll() is None:
-                proc.send_signal(signal.SIGTERM)
-                try:
-                    proc.wait(timeout=10)
-                except subprocess.TimeoutExpired:
-                    proc.kill()
+        stop_all(procs)
         dump_out.close()
 
     # Where the vehicle is, from the simulated world: both teeth in their troughs.
