@@ -30,6 +30,7 @@ def result_document(result: DockResult, params: DockRunParams) -> dict[str, obje
         "pattern_switches": result.pattern_switches,
         "attempts": result.attempts,
         "contact_misaligned": result.contact_misaligned,
+        "final_speed_mps": round(result.final_speed_mps, 4),
         "time_s": round(result.sim_time_s, 2),
         "wall_time_s": round(result.wall_time_s, 3),
         "real_time_factor": round(result.real_time_factor, 2),

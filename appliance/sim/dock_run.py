@@ -86,6 +86,7 @@ class DockResult:
     wall_time_s: float
     estimate_error_m: float  # the localizer's position error at the end (truth vs estimate)
     rejected: dict[str, int]
+    final_speed_mps: float = 0.0  # the truth's: a run that ends stopped ends at 0
 
     @property
     def real_time_factor(self) -> float:
@@ -217,4 +218,5 @@ def run_dock(config: VehicleConfig, params: DockRunParams) -> DockResult:
         wall_time_s=time.perf_counter() - started,
         estimate_error_m=estimate_error,
         rejected=dict(final.rejected),
+        final_speed_mps=state.speed_mps,
     )
