@@ -65,44 +65,57 @@ class BoardMotionParams:
 
 def _along(direction: FloatArray, end_a: BoardEnd, end_b: BoardEnd, dyaw: float) -> float:
     c, s = math.cos(dyaw), math.sin(dyaw)
-    b_in_a = np.array([c * end_b.x_m - s * end_b.y_m, s * end_b.x_m + c * end_b.y_m])
-    return float(direction @ (np.array([end_a.x_m, end_a.y_m]) - b_in_a))
+    # end_a less end_b turned into a's frame, worked out in floats as numpy would.
+    apart = [
+        end_a.x_m - (c * end_b.x_m - s * end_b.y_m),
+        end_a.y_m - (s * end_b.x_m + c * end_b.y_m),
+    ]
+    return float(direction @ np.array(apart))
 
 
 def motion_between(
     older: BoardSighting, newer: BoardSighting, params: BoardMotionParams
 ) -> BodyMotion | None:
-    """O_f's velocity in its own frame from two sightings of the board, with covariance."""
+    """O_f's velocity in its own frame from two sightings of the board, with covariance.
+
+    Element by element in floats (the same roundings as numpy's elementwise operations:
+    a few small arrays cost more than their arithmetic); products of vectors and
+    matrices stay numpy's, whose sums may round differently."""
     dt_s = newer.t_s - older.t_s
     if not dt_s > 0.0:
         return None
     dyaw = wrap_angle_rad(older.alpha_rad - newer.alpha_rad)
-    normal = np.array([math.cos(older.alpha_rad), math.sin(older.alpha_rad)])
-    direction = np.array([-normal[1], normal[0]])
+    nx, ny = math.cos(older.alpha_rad), math.sin(older.alpha_rad)
+    dx, dy = -ny, nx  # the direction along the board
+    direction = np.array([dx, dy])
     along_normal = older.r_m - newer.r_m
-    var_normal = float(older.covariance[0, 0] + newer.covariance[0, 0])
-    var_yaw = float(older.covariance[1, 1] + newer.covariance[1, 1])
-    estimates: list[tuple[float, float]] = []
+    var_normal = older.covariance.item(0, 0) + newer.covariance.item(0, 0)
+    var_yaw = older.covariance.item(1, 1) + newer.covariance.item(1, 1)
+    estimates: list[float] = []
+    variances: list[float] = []
     for a, b in ((older.low_end, newer.low_end), (older.high_end, newer.high_end)):
         if a is not None and b is not None:
             lever_m = math.hypot(b.x_m, b.y_m)
-            variance = a.sigma_m**2 + b.sigma_m**2 + lever_m**2 * var_yaw
-            estimates.append((_along(direction, a, b, dyaw), variance))
+            variances.append(a.sigma_m**2 + b.sigma_m**2 + lever_m**2 * var_yaw)
+            estimates.append(_along(direction, a, b, dyaw))
     if estimates:
-        weights = np.array([1.0 / v for _, v in estimates])
-        along = float(np.dot(weights, [e for e, _ in estimates]) / weights.sum())
-        var_along = float(1.0 / weights.sum())
+        weights = np.array([1.0 / v for v in variances])
+        total = float(np.add.reduce(weights))
+        along = float(np.dot(weights, estimates)) / total
+        var_along = 1.0 / total
     else:
         along = 0.0
         var_along = (params.unknown_along_sigma_mps * dt_s) ** 2
-    translation = normal * along_normal + direction * along
-    basis = np.column_stack([normal, direction])
-    cov_t = basis @ np.diag([var_normal, var_along]) @ basis.T
-    covariance = np.zeros((3, 3))
-    covariance[:2, :2] = cov_t
-    covariance[2, 2] = var_yaw
-    velocity = np.array([translation[0], translation[1], dyaw]) / dt_s
-    return BodyMotion(velocity, covariance / (dt_s * dt_s), correlation_time_s=dt_s)
+    translation = (nx * along_normal + dx * along, ny * along_normal + dy * along)
+    basis = np.array([[nx, dx], [ny, dy]])
+    (c00, c01), (c10, c11) = (
+        basis @ np.array([[var_normal, 0.0], [0.0, var_along]]) @ basis.T
+    ).tolist()
+    covariance = np.array([[c00, c01, 0.0], [c10, c11, 0.0], [0.0, 0.0, var_yaw]])
+    velocity = np.array([translation[0], translation[1], dyaw])
+    velocity /= dt_s
+    covariance /= dt_s * dt_s
+    return BodyMotion(velocity, covariance, correlation_time_s=dt_s)
 
 
 class _WindowMotion(NamedTuple):

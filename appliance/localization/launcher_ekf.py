@@ -29,6 +29,7 @@ import math
 from collections import Counter
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 from filterpy.kalman import ExtendedKalmanFilter
@@ -39,6 +40,10 @@ from appliance.localization.compound import compound, compound_jacobians, wrap_a
 from drivers.geometry import Pose2D
 
 FloatArray = NDArray[np.float64]
+# A measurement model: the state (x, y, yaw) to the predicted measurement and its
+# Jacobian, as floats.
+Terms = tuple[list[float], list[list[float]]]
+Model = Callable[[list[float]], Terms]
 
 
 @dataclass(frozen=True)
@@ -106,6 +111,15 @@ def cylinder_measurement(
     ``(x_L, y_L)``); the bearing is in the scanner's frame (x out of its window), so the
     paper's ``+ π/2`` (the device's angle convention) is already taken out upstream.
     """
+    z, jac = _cylinder_terms(state, landmark_xy, sensor)
+    return np.array(z), np.array(jac)
+
+
+def _cylinder_terms(
+    state: Sequence[float] | FloatArray, landmark_xy: tuple[float, float], sensor: Pose2D
+) -> Terms:
+    """`cylinder_measurement` as floats: the association works out the NIS of every
+    landmark, and arrays are only needed for the one the filter is updated with."""
     x, y, yaw = float(state[0]), float(state[1]), float(state[2])
     c, s = math.cos(yaw), math.sin(yaw)
     sx = x + c * sensor.x_m - s * sensor.y_m
@@ -115,31 +129,75 @@ def cylinder_measurement(
     dx, dy = landmark_xy[0] - sx, landmark_xy[1] - sy
     q = dx * dx + dy * dy
     r = math.sqrt(q)
-    z = np.array([r, wrap_angle_rad(math.atan2(dy, dx) - yaw - sensor.yaw_rad)])
-    jac = np.array(
-        [
-            [-dx / r, -dy / r, -(dx * dsx_dyaw + dy * dsy_dyaw) / r],
-            [dy / q, -dx / q, (dy * dsx_dyaw - dx * dsy_dyaw) / q - 1.0],
-        ]
-    )
+    z = [r, wrap_angle_rad(math.atan2(dy, dx) - yaw - sensor.yaw_rad)]
+    jac = [
+        [-dx / r, -dy / r, -(dx * dsx_dyaw + dy * dsy_dyaw) / r],
+        [dy / q, -dx / q, (dy * dsx_dyaw - dx * dsy_dyaw) / q - 1.0],
+    ]
     return z, jac
 
 
 def board_measurement(state: FloatArray) -> tuple[FloatArray, FloatArray]:
     """The front board (the launcher's line x = 0) as (r, α) in the O_f frame, and its
     Jacobian: ``r = -x`` (positive in front of the board), ``α = -ψ``."""
-    z = np.array([-float(state[0]), wrap_angle_rad(-float(state[2]))])
-    return z, np.array([[-1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
+    z, jac = _board_terms(state)
+    return np.array(z), np.array(jac)
+
+
+def _board_terms(state: Sequence[float] | FloatArray) -> Terms:
+    """`board_measurement` as floats."""
+    return (
+        [-float(state[0]), wrap_angle_rad(-float(state[2]))],
+        [[-1.0, 0.0, 0.0], [0.0, 0.0, -1.0]],
+    )
 
 
 def _residual(z: FloatArray, z_hat: FloatArray) -> FloatArray:
     return np.array([z[0] - z_hat[0], wrap_angle_rad(float(z[1] - z_hat[1]))])
 
 
-def _cylinder_model(
-    landmark_xy: tuple[float, float], sensor: Pose2D
-) -> Callable[[FloatArray], tuple[FloatArray, FloatArray]]:
-    return lambda state: cylinder_measurement(state, landmark_xy, sensor)
+def _nis(
+    h: list[list[float]], p: list[list[float]], r: list[list[float]], y0: float, y1: float
+) -> float:
+    """``yᵀ S⁻¹ y`` with ``S = H P Hᵀ + R`` (2x3, 3x3, 2x2) in floats, Cramer's rule for
+    the solve: a sixth of the cost of numpy's products and ``linalg.solve`` at this size,
+    and the same to rounding. Only the NIS is worked out so (the update is filterpy's
+    own): it gates and associates. ``LinAlgError`` for a singular ``S``, as the solve."""
+    (a0, a1, a2), (b0, b1, b2) = h
+    (p00, p01, p02), (p10, p11, p12), (p20, p21, p22) = p
+    u0, u1, u2 = (a0 * p00 + a1 * p10 + a2 * p20, a0 * p01 + a1 * p11 + a2 * p21,
+                  a0 * p02 + a1 * p12 + a2 * p22)  # fmt: skip
+    v0, v1, v2 = (b0 * p00 + b1 * p10 + b2 * p20, b0 * p01 + b1 * p11 + b2 * p21,
+                  b0 * p02 + b1 * p12 + b2 * p22)  # fmt: skip
+    s00, s01 = u0 * a0 + u1 * a1 + u2 * a2 + r[0][0], u0 * b0 + u1 * b1 + u2 * b2 + r[0][1]
+    s10, s11 = v0 * a0 + v1 * a1 + v2 * a2 + r[1][0], v0 * b0 + v1 * b1 + v2 * b2 + r[1][1]
+    det = s00 * s11 - s01 * s10
+    if det == 0.0:
+        raise np.linalg.LinAlgError("singular innovation covariance")
+    return (y0 * (s11 * y0 - s01 * y1) + y1 * (s00 * y1 - s10 * y0)) / det
+
+
+def _cylinder_model(landmark_xy: tuple[float, float], sensor: Pose2D) -> Model:
+    return lambda state: _cylinder_terms(state, landmark_xy, sensor)
+
+
+def _well_formed(z: FloatArray, r_cov: FloatArray) -> bool:
+    """A 2-vector of finite values and a 2x2 covariance: what an update can use."""
+    return (
+        z.shape == (2,)
+        and r_cov.shape == (2, 2)
+        and math.isfinite(float(z[0]))
+        and math.isfinite(float(z[1]))
+    )
+
+
+class _Innovation(NamedTuple):
+    """A measurement's NIS at the filter's present state, and the model's prediction
+    ``z_hat`` and Jacobian ``h`` there."""
+
+    nis: float
+    z_hat: list[float]
+    h: list[list[float]]
 
 
 class LauncherEkf:
@@ -203,7 +261,8 @@ class LauncherEkf:
             + p.heading_noise_per_m_rad * moved_m
             + p.heading_noise_per_sqrt_s_rad * root_dt
         )
-        return np.diag([sigma_t**2, sigma_t**2, sigma_r**2])
+        t2, r2 = sigma_t**2, sigma_r**2
+        return np.array([[t2, 0.0, 0.0], [0.0, t2, 0.0], [0.0, 0.0, r2]])
 
     def predict(self, t_s: float, motion: BodyMotion) -> bool:
         """Eqs. 2-3: move the estimate to ``t_s`` with the board's motion. False (and
@@ -241,13 +300,13 @@ class LauncherEkf:
             kind,
             np.asarray(z, dtype=float),
             np.asarray(r_cov, dtype=float),
-            lambda state: cylinder_measurement(state, landmark_xy, sensor),
+            _cylinder_model(landmark_xy, sensor),
         )
 
     def update_board(self, z: FloatArray, r_cov: FloatArray) -> UpdateOutcome:
         """The front board's (r, α) in the O_f frame, as a measurement of x and ψ."""
         return self._update(
-            "board", np.asarray(z, dtype=float), np.asarray(r_cov, dtype=float), board_measurement
+            "board", np.asarray(z, dtype=float), np.asarray(r_cov, dtype=float), _board_terms
         )
 
     def innovation(
@@ -255,7 +314,8 @@ class LauncherEkf:
     ) -> float:
         """The NIS a cylinder measurement would have against ``landmark_xy``, for
         association: the localizer gives a detected cylinder to the landmark it fits best."""
-        return self._nis(z, r_cov, _cylinder_model(landmark_xy, sensor))
+        z, r_cov = np.asarray(z, dtype=float), np.asarray(r_cov, dtype=float)
+        return self._innovations(z, r_cov, [_cylinder_model(landmark_xy, sensor)])[0].nis
 
     def update_nearest_cylinder(
         self,
@@ -266,51 +326,55 @@ class LauncherEkf:
     ) -> tuple[int, UpdateOutcome]:
         """`update_cylinder` with the landmark of the smallest `innovation` (the first of
         equals): its index and the outcome. The same as choosing with ``innovation`` and
-        then updating, without working out the chosen one's NIS twice."""
+        then updating, without working out the chosen one's NIS, prediction and Jacobian
+        twice."""
         if not landmarks_xy:
             raise ValueError("no landmark to associate the cylinder with")
         z = np.asarray(z, dtype=float)
         r_cov = np.asarray(r_cov, dtype=float)
         models = [_cylinder_model(xy, sensor) for xy in landmarks_xy]
-        if z.shape != (2,) or r_cov.shape != (2, 2) or not np.all(np.isfinite(z)):
+        if not _well_formed(z, r_cov):
             return 0, self._update("cylinder", z, r_cov, models[0])
-        nis = [self._nis(z, r_cov, model) for model in models]
-        best = min(range(len(nis)), key=nis.__getitem__)
-        return best, self._update("cylinder", z, r_cov, models[best], known_nis=nis[best])
+        found = self._innovations(z, r_cov, models)
+        best = min(range(len(found)), key=lambda k: found[k].nis)
+        return best, self._update("cylinder", z, r_cov, models[best], known=found[best])
 
-    def _nis(
-        self,
-        z: FloatArray,
-        r_cov: FloatArray,
-        model: Callable[[FloatArray], tuple[FloatArray, FloatArray]],
-    ) -> float:
-        z_hat, h = model(self.state)
-        y = _residual(np.asarray(z, dtype=float), z_hat)
-        s = h @ self._kf.P @ h.T + r_cov
-        return float(y @ np.linalg.solve(s, y))
+    def _innovations(
+        self, z: FloatArray, r_cov: FloatArray, models: Sequence[Model]
+    ) -> list[_Innovation]:
+        """The NIS of a measurement under each model at the present state, with the
+        model's prediction and Jacobian there (which the update then reuses: the state
+        has not moved). In floats: these are 2x2 and 2x3."""
+        state, p, r = self.state.tolist(), self._kf.P.tolist(), r_cov.tolist()
+        z0, z1 = float(z[0]), float(z[1])
+        found = []
+        for model in models:
+            z_hat, h = model(state)
+            y0, y1 = z0 - z_hat[0], wrap_angle_rad(z1 - z_hat[1])
+            found.append(_Innovation(_nis(h, p, r, y0, y1), z_hat, h))
+        return found
 
     def _update(
         self,
         kind: str,
         z: FloatArray,
         r_cov: FloatArray,
-        model: Callable[[FloatArray], tuple[FloatArray, FloatArray]],
-        known_nis: float | None = None,
+        model: Model,
+        known: _Innovation | None = None,
     ) -> UpdateOutcome:
-        """``known_nis``: the NIS of ``model`` at the present state, already worked out."""
+        """``known``: the `_innovations` of ``model`` at the present state, worked out."""
         if self.t_s is None:
             raise RuntimeError("update before reset: the filter has no initial pose")
-        if z.shape != (2,) or r_cov.shape != (2, 2) or not np.all(np.isfinite(z)):
+        if not _well_formed(z, r_cov):
             self.rejected[f"{kind}:malformed"] += 1
             return UpdateOutcome(False, kind, math.nan, "malformed measurement")
-        if known_nis is not None:
-            nis = known_nis
-        else:
+        if known is None:
             try:
-                nis = self._nis(z, r_cov, model)
+                known = self._innovations(z, r_cov, [model])[0]
             except np.linalg.LinAlgError:
                 self.rejected[f"{kind}:singular"] += 1
                 return UpdateOutcome(False, kind, math.nan, "singular innovation covariance")
+        nis = known.nis
         self.last_nis[kind] = nis
         if not nis <= self._gate_2d:
             self.rejected[kind] += 1
@@ -322,13 +386,10 @@ class LauncherEkf:
             return UpdateOutcome(False, kind, nis, f"gated: NIS {nis:.1f} > {self._gate_2d:.1f}")
         self._rejection_run[kind] = 0
         self._kf.x = self.state
-        self._kf.update(
-            z,
-            lambda state: model(state)[1],
-            lambda state: model(state)[0],
-            R=r_cov,
-            residual=_residual,
-        )
+        # filterpy asks for H(x) and h(x) at its x, which is the state `known` was worked
+        # out at: its figures, as arrays, are what the model gives there.
+        h, z_hat = np.array(known.h), np.array(known.z_hat)
+        self._kf.update(z, lambda _: h, lambda _: z_hat, R=r_cov, residual=_residual)
         x = self.state
         x[2] = wrap_angle_rad(float(x[2]))
         self._kf.x = x

@@ -196,19 +196,21 @@ class LauncherLocalizer:
         )
 
     # ---- with a pose -----------------------------------------------------------------
-    def _rois(self, state: FloatArray) -> list[DiscRoi | LineRoi]:
+    def _rois(
+        self, state: FloatArray, cylinders: tuple[CylinderLandmark, ...]
+    ) -> list[DiscRoi | LineRoi]:
         p = self.params
-        inverse_pose = Pose2D(*state)
-        c, s = math.cos(inverse_pose.yaw_rad), math.sin(inverse_pose.yaw_rad)
+        x, y, yaw = state.tolist()
+        c, s = math.cos(yaw), math.sin(yaw)
 
         def to_of(x_m: float, y_m: float) -> tuple[float, float]:
-            dx, dy = x_m - state[0], y_m - state[1]
+            dx, dy = x_m - x, y_m - y
             return c * dx + s * dy, -s * dx + c * dy
 
         half = p.launcher.half_width_m
         (x0, y0), (x1, y1) = to_of(0.0, -half), to_of(0.0, half)
         rois: list[DiscRoi | LineRoi] = [LineRoi(x0, y0, x1, y1, p.board_roi_m)]
-        for landmark in p.launcher.cylinders:
+        for landmark in cylinders:
             cx, cy = to_of(landmark.x_m, landmark.y_m)
             rois.append(DiscRoi(cx, cy, p.cylinder_roi_m))
         return rois
@@ -226,27 +228,30 @@ class LauncherLocalizer:
         if not self.ekf.predict(t_s, motion):
             return
         pose_in_of = self.sensors[sensor]
+        cylinders = p.launcher.cylinders  # a property: built anew at every read
         features = extract_features(
-            ranges_m, angles_rad, pose_in_of, p.features, self._rois(self.ekf.state),
+            ranges_m, angles_rad, pose_in_of, p.features, self._rois(self.ekf.state, cylinders),
             range_offset_m=setup.range_offset_m,
         )  # fmt: skip
         self.last_features[sensor] = features
         self.feature_rejections.update(features.rejections)
-        systematic = np.diag([setup.systematic_range_sigma_m**2, setup.systematic_yaw_sigma_rad**2])
+        systematic = np.array(
+            [[setup.systematic_range_sigma_m**2, 0.0], [0.0, setup.systematic_yaw_sigma_rad**2]]
+        )
         # Per landmark, this scan's best: one detection accepted is the landmark seen,
         # whatever else near it (a post, a person) was kept out.
         seen: dict[str, tuple[bool, float]] = {}
-        landmarks_xy = [(lm.x_m, lm.y_m) for lm in p.launcher.cylinders]
+        landmarks_xy = [(lm.x_m, lm.y_m) for lm in cylinders]
         for circle in features.circles:
             z, cov = _polar(circle, pose_in_of)
             r_cov = cov + systematic
             index, outcome = self.ekf.update_nearest_cylinder(z, r_cov, landmarks_xy, pose_in_of)
-            best = p.launcher.cylinders[index]
+            best = cylinders[index]
             accepted, nis = seen.get(best.name, (False, math.inf))
             seen[best.name] = (accepted or outcome.accepted, min(nis, outcome.nis))
             if outcome.accepted:
                 self._last_accept_s = self._last_cylinder_s = t_s
-        for landmark in p.launcher.cylinders:
+        for landmark in cylinders:
             if landmark.name not in seen and self._in_view(landmark, pose_in_of):
                 seen[landmark.name] = (False, math.nan)  # predicted in view, not found
         for name, (accepted, nis) in seen.items():

@@ -46,11 +46,12 @@ def evaluate(xs: FloatArray, ys: FloatArray, x: list[float], radius_m: float) ->
     dy = np.subtract(ys, x[1], out=rows[1])
     distance = np.hypot(dx, dy)
     inverse = 1.0 / distance
-    np.subtract(distance, radius_m, out=rows[2])
+    residuals = np.subtract(distance, radius_m, out=rows[2])
     dx *= inverse
     dy *= inverse
-    inverse *= rows[2]
-    np.multiply(rows[0:2], inverse, out=rows[3:5])
+    inverse *= residuals
+    np.multiply(dx, inverse, out=rows[3])  # two 1-D products cost less than one of 2-D
+    np.multiply(dy, inverse, out=rows[4])
     rows[5] = 1.0
     sums: list[list[float]] = (rows @ rows.T).tolist()
     # Every sum is finite when the diagonal is (Cauchy–Schwarz).
@@ -190,21 +191,41 @@ def minimise(
     return x, current, False
 
 
+class Beams(NamedTuple):
+    """The fitted points as coordinates (contiguous) and their beams from the scanner:
+    the same at every step of a search, and for both fits of one arc (the known radius
+    and the free radius' check), so worked out once."""
+
+    xs: FloatArray
+    ys: FloatArray
+    bx: FloatArray  # the beam: the point less the scanner's position
+    by: FloatArray
+    length: FloatArray  # its length: the point's distance from the scanner
+    divisor: FloatArray  # the length, 1 for a point on the scanner (it has no beam)
+    origin_xy_m: tuple[float, float]
+
+
+def beams(xs: FloatArray, ys: FloatArray, origin_xy_m: tuple[float, float]) -> Beams:
+    """`Beams` of the points ``xs``, ``ys`` seen from ``origin_xy_m``."""
+    bx, by = xs - origin_xy_m[0], ys - origin_xy_m[1]
+    length = np.hypot(bx, by)
+    # A point has a beam unless it is on the scanner (or not finite): the usual case costs
+    # one minimum, not a copy.
+    if length.shape[0] and np.minimum.reduce(length) > 0.0:
+        divisor = length
+    else:
+        divisor = np.where(length > 0.0, length, 1.0)
+    return Beams(xs, ys, bx, by, length, divisor, origin_xy_m)
+
+
 def centre_covariance(
-    xs: FloatArray,
-    ys: FloatArray,
-    terms: Evaluation,
-    free: bool,
-    origin_xy_m: tuple[float, float],
-    scanner: ScannerModel,
+    points: Beams, terms: Evaluation, free: bool, scanner: ScannerModel
 ) -> FloatArray | None:
     """The first-order sandwich ``(JᵀJ)⁻¹ Jᵀ diag(σ_i²) J (JᵀJ)⁻¹`` over (cx, cy (, R)),
     with each residual's variance from its beam's incidence on the circle; None unless
     ``JᵀJ`` is invertible and the result finite."""
-    bx, by = xs - origin_xy_m[0], ys - origin_xy_m[1]
-    length = np.hypot(bx, by)
     radial = terms.rows
-    cos_incidence = (bx * radial[0] + by * radial[1]) / np.where(length > 0.0, length, 1.0)
+    cos_incidence = (points.bx * radial[0] + points.by * radial[1]) / points.divisor
     used = terms.rows[[0, 1, 5]] if free else terms.rows[0:2]
     middle = (used * scanner.normal_variance(cos_incidence)) @ used.T
     g0, g1, g5 = terms.sums[0], terms.sums[1], terms.sums[5]
@@ -217,6 +238,33 @@ def centre_covariance(
     covariance: FloatArray = outer @ middle @ outer
     covariance = 0.5 * (covariance + covariance.T)
     return covariance if np.isfinite(covariance).all() else None
+
+
+def radius_variance(points: Beams, terms: Evaluation, scanner: ScannerModel) -> float | None:
+    """The free fit's ``var R``: the last diagonal entry of `centre_covariance`, with its
+    3x3 sandwich in floats (numpy's products of 3x3 matrices cost more than their
+    arithmetic). It only decides whether a free radius surely agrees
+    (`circles.free_radius_mismatch`), a test with a 2 % margin on σ, which products
+    rounded differently move by parts in 10¹⁶; None where `centre_covariance` is."""
+    radial = terms.rows
+    cos_incidence = (points.bx * radial[0] + points.by * radial[1]) / points.divisor
+    used = terms.rows[[0, 1, 5]]
+    middle = ((used * scanner.normal_variance(cos_incidence)) @ used.T).tolist()
+    g0, g1, g5 = terms.sums[0], terms.sums[1], terms.sums[5]
+    inverse = _inverse_3x3(g0[0], g0[1], g0[5], g1[1], g1[5], g5[5])
+    if inverse is None:
+        return None
+    if not all(map(math.isfinite, (*middle[0], *middle[1], *middle[2], *inverse[0],
+                                   *inverse[1], *inverse[2]))):  # fmt: skip
+        return None
+    (m00, m01, m02), (m10, m11, m12), (m20, m21, m22) = middle
+    k0, k1, k2 = inverse[2]  # the last row of the symmetric inverse: its last column
+    variance = (
+        k0 * (m00 * k0 + m01 * k1 + m02 * k2)
+        + k1 * (m10 * k0 + m11 * k1 + m12 * k2)
+        + k2 * (m20 * k0 + m21 * k1 + m22 * k2)
+    )
+    return variance if math.isfinite(variance) else None
 
 
 def _sandwich_2x2(

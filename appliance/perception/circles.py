@@ -31,12 +31,15 @@ import numpy as np
 
 from appliance.perception.circle_search import (
     ROUNDING,
+    Beams,
     Evaluation,
+    beams,
     centre_covariance,
     coordinates,
     evaluate,
     minimise,
     positive_definite_free,
+    radius_variance,
     step_free,
 )
 from appliance.perception.types import (
@@ -63,8 +66,19 @@ class CircleFit:
     rms_m: float
     n_points: int
     residuals_m: FloatArray
-    # The search's terms at the solution, for a refit of the same points from there.
+    # The search's terms at the solution, for a refit of the same points from there, and
+    # the points' beams.
     _terms: Evaluation | None = field(default=None, repr=False)
+    _beams: Beams | None = field(default=None, repr=False)
+
+    @property
+    def mean_range_m(self) -> float:
+        """The mean distance of the fitted points from the scanner."""
+        if self._beams is None:
+            raise ValueError("a circle fit without its points")
+        length = self._beams.length
+        total = float(np.add.reduce(length))  # np.mean's sum and division, less its wrapper
+        return total / len(length)
 
 
 def taubin_circle(xy_m: FloatArray) -> tuple[float, float, float] | FitRejection:
@@ -109,20 +123,18 @@ def taubin_circle(xy_m: FloatArray) -> tuple[float, float, float] | FitRejection
 
 
 def _finish_fit(
-    xs: FloatArray,
-    ys: FloatArray,
+    points: Beams,
     x: list[float],
     terms: Evaluation,
     radius_m: float | None,
-    origin_xy_m: tuple[float, float],
     scanner: ScannerModel,
 ) -> CircleFit | FitRejection:
-    covariance = centre_covariance(xs, ys, terms, radius_m is None, origin_xy_m, scanner)
+    covariance = centre_covariance(points, terms, radius_m is None, scanner)
     if covariance is None:
         return FitRejection(RejectReason.DEGENERATE, "the centre is not determined")
     radius = x[2] if radius_m is None else radius_m
     radius_sigma = 0.0 if radius_m is not None else math.sqrt(max(float(covariance[2, 2]), 0.0))
-    rms = math.sqrt(terms.sums[2][2] / xs.shape[0])
+    rms = math.sqrt(terms.sums[2][2] / points.xs.shape[0])
     if not (math.isfinite(rms) and math.isfinite(radius_sigma) and all(map(math.isfinite, x))):
         return FitRejection(RejectReason.NON_FINITE)
     return CircleFit(
@@ -132,9 +144,10 @@ def _finish_fit(
         covariance[:2, :2],
         radius_sigma,
         rms,
-        int(xs.shape[0]),
+        int(points.xs.shape[0]),
         terms.rows[2].copy(),
         terms,
+        points,
     )
 
 
@@ -156,7 +169,7 @@ def fit_circle_known_radius(
     if n < 2:
         return FitRejection(RejectReason.TOO_FEW_POINTS, f"{n} point(s)")
     with np.errstate(all="ignore"):
-        if not np.isfinite(xy_m).all():
+        if not np.logical_and.reduce(np.isfinite(xy_m), axis=None):
             return FitRejection(RejectReason.NON_FINITE)
         mx, my = xy_m[n // 2].tolist()
         bx, by = mx - origin_xy_m[0], my - origin_xy_m[1]
@@ -174,7 +187,7 @@ def fit_circle_known_radius(
                 guess = list(algebraic[:2])
             centre, terms, converged = minimise(xs, ys, guess, radius_m, max_iterations)
             if converged:
-                return _finish_fit(xs, ys, centre, terms, radius_m, origin_xy_m, scanner)
+                return _finish_fit(beams(xs, ys, origin_xy_m), centre, terms, radius_m, scanner)
     return FitRejection(RejectReason.NOT_CONVERGED)
 
 
@@ -201,7 +214,7 @@ def fit_circle_free(
         x, terms, converged = minimise(xs, ys, list(start), None, max_iterations)
         if not (converged and x[2] > 0.0):
             return FitRejection(RejectReason.NOT_CONVERGED)
-        return _finish_fit(xs, ys, x, terms, None, origin_xy_m, scanner)
+        return _finish_fit(beams(xs, ys, origin_xy_m), x, terms, None, scanner)
 
 
 def free_radius_mismatch(
@@ -225,8 +238,14 @@ def free_radius_mismatch(
     a way), the fit would agree. Anything else is decided by the full fit.
     """
     with np.errstate(all="ignore"):
-        xs, ys = coordinates(xy_m)
-        if _surely_agrees(xs, ys, known, origin_xy_m, scanner, tolerance_m, sigmas):
+        points = known._beams  # the same points: their beams are known already
+        if (
+            points is None
+            or points.xs.shape[0] != xy_m.shape[0]
+            or points.origin_xy_m != origin_xy_m
+        ):
+            points = beams(*coordinates(xy_m), origin_xy_m)
+        if _surely_agrees(points, known, scanner, tolerance_m, sigmas):
             return None
     free = fit_circle_free(
         xy_m, origin_xy_m, scanner, max_iterations, start=(known.cx_m, known.cy_m, known.radius_m)
@@ -238,14 +257,13 @@ def free_radius_mismatch(
 
 
 def _surely_agrees(
-    xs: FloatArray,
-    ys: FloatArray,
+    points: Beams,
     known: CircleFit,
-    origin_xy_m: tuple[float, float],
     scanner: ScannerModel,
     tolerance_m: float,
     sigmas: float,
 ) -> bool:
+    xs, ys = points.xs, points.ys
     x = [known.cx_m, known.cy_m, known.radius_m]
     # A known-radius fit's last terms are the free fit's first: the same residuals.
     current = known._terms
@@ -261,10 +279,10 @@ def _surely_agrees(
         if size <= 1e-5 * (max(map(abs, x)) + 1.0):
             if not positive_definite_free(current.sums):
                 return False
-            covariance = centre_covariance(xs, ys, current, True, origin_xy_m, scanner)
-            if covariance is None:
+            variance = radius_variance(points, current, scanner)
+            if variance is None:
                 return False
-            sigma = math.sqrt(max(float(covariance[2, 2]), 0.0))
+            sigma = math.sqrt(max(variance, 0.0))
             off = abs(x[2] + step[2] - known.radius_m) + 10.0 * size
             return off <= tolerance_m + sigmas * 0.98 * sigma
         moved = [a + b for a, b in zip(x, step, strict=True)]

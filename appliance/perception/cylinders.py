@@ -121,7 +121,7 @@ def _width_problem(
     footprint widens the arc by about ``footprint_widening`` of its own angular size; a
     scanner without one (the ideal model) is inside the tolerance.
     """
-    centre_m = float(points.ranges_m[start:stop].min()) + params.radius_m
+    centre_m = float(np.minimum.reduce(points.ranges_m[start:stop])) + params.radius_m
     directions = points.directions
     span = _angle_between(directions[start].tolist(), directions[stop - 1].tolist())
     expected = 2.0 * math.asin(min(1.0, params.radius_m / centre_m))
@@ -197,8 +197,7 @@ def fit_cylinder(
     used = points.xy_m[first:last]
     ox, oy = points.origin_xy_m
     centre_range = math.hypot(fit.cx_m - ox, fit.cy_m - oy)
-    arc_range = float(np.mean(np.hypot(used[:, 0] - ox, used[:, 1] - oy)))
-    if centre_range - arc_range < params.facing_fraction * params.radius_m:
+    if centre_range - fit.mean_range_m < params.facing_fraction * params.radius_m:
         return FitRejection(RejectReason.NOT_FACING)
     if last - first >= params.radius_check_points:
         free_radius = free_radius_mismatch(

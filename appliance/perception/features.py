@@ -92,7 +92,9 @@ class LineRoi:
             along = px * ex
             along += py * ey
             along /= length_sq
-            np.clip(along, 0.0, 1.0, out=along)
+            # Clipped to the segment (a sign of zero lost here is squared away below).
+            np.maximum(along, 0.0, out=along)
+            np.minimum(along, 1.0, out=along)
         else:
             along = np.zeros(len(px))
         px -= along * ex
@@ -122,10 +124,12 @@ _DEFAULTS = FeatureParams()
 
 def roi_mask(xy_m: FloatArray, rois: Sequence[Roi]) -> BoolArray:
     """Beams whose point lies in at least one region."""
-    mask = np.zeros(xy_m.shape[0], dtype=np.bool_)
+    if not rois:
+        return np.zeros(xy_m.shape[0], dtype=np.bool_)
     x_m, y_m = np.ascontiguousarray(xy_m[:, 0]), np.ascontiguousarray(xy_m[:, 1])
     with np.errstate(over="ignore", invalid="ignore"):  # a point at 1e300 m is in none
-        for roi in rois:
+        mask = rois[0].contains_xy(x_m, y_m)
+        for roi in rois[1:]:
             mask |= roi.contains_xy(x_m, y_m)
     return mask
 

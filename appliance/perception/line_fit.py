@@ -59,10 +59,23 @@ def moment_columns(q: FloatArray) -> FloatArray:
     """Columns whose weighted sums are every moment a line fit needs: 1, x, y, x², y², xy."""
     columns = np.empty((q.shape[0], 6))
     columns[:, 0] = 1.0
-    columns[:, 1:3] = q
-    columns[:, 3:5] = q * q
-    columns[:, 5] = q[:, 0] * q[:, 1]
+    x, y = q[:, 0], q[:, 1]
+    columns[:, 1] = x  # column by column: numpy's loops over 2-wide rows are slow
+    columns[:, 2] = y
+    np.multiply(x, x, out=columns[:, 3])
+    np.multiply(y, y, out=columns[:, 4])
+    np.multiply(x, y, out=columns[:, 5])
     return columns
+
+
+def column_sums(rows: FloatArray) -> FloatArray:
+    """``np.add.reduce(rows, axis=0)`` to the last bit (both add the rows one after the
+    other): the last running sum, which numpy works out three times faster when the
+    rows are a few numbers wide."""
+    if rows.shape[0] == 0:
+        return np.zeros(rows.shape[1:])
+    sums: FloatArray = np.add.accumulate(rows, axis=0)[-1]
+    return sums
 
 
 class RoughLine(NamedTuple):
@@ -209,7 +222,7 @@ def _finish_line_fit(
     cov_r_alpha = lever * var_alpha
     squares = np.multiply(residuals, residuals, out=residuals)
     rms = math.sqrt(float(np.add.reduce(squares)) / q.shape[0])
-    worst = math.sqrt(float(squares.max()))
+    worst = math.sqrt(float(np.maximum.reduce(squares)))
     chi_square = float(weights @ squares)
     finite = math.isfinite(var_r) and math.isfinite(cov_r_alpha) and math.isfinite(var_alpha)
     if not (finite and math.isfinite(rms + chi_square + line.r_m)):

@@ -40,6 +40,7 @@ from appliance.perception.gates import chi_square_quantile
 from appliance.perception.line_fit import (
     LineFit,
     RoughLine,
+    column_sums,
     fit_line_moments,
     line_from_list,
     moment_columns,
@@ -142,17 +143,27 @@ _Candidate = tuple[float, tuple[IndexArray, RoughLine]]  # (χ² / gate, merged 
 
 class _Cluster:
     """One segment's points with their moment columns: the isotropic line of any subset
-    is then one indexed sum away, and split-and-merge tries many subsets."""
+    is then one indexed sum away, and split-and-merge tries many subsets. Most are runs
+    that start where a piece starts (a merge keeps the first piece's start): the running
+    sums of the rows from each start are kept, and are the runs' sums to the last bit
+    (``np.add.reduce`` adds the rows one after the other too)."""
 
     def __init__(self, xy_m: FloatArray, scanner: ScannerModel) -> None:
-        self.shift = xy_m.sum(axis=0) / max(xy_m.shape[0], 1)
+        self.shift = column_sums(xy_m) / max(xy_m.shape[0], 1)
         self.shift_xy = (float(self.shift[0]), float(self.shift[1]))
         self.q = xy_m - self.shift
         self.moments = moment_columns(self.q)
         self.weight = 1.0 / (scanner.sigma_m**2 + scanner.floor_sigma_m**2)
+        self._running: dict[int, FloatArray] = {}  # by first row: the running sums
 
     def line(self, indices: IndexArray) -> RoughLine | None:
-        sums = np.add.reduce(_rows(self.moments, indices), axis=0).tolist()
+        first, last = int(indices[0]), int(indices[-1])
+        if last - first + 1 != indices.shape[0]:  # not a run
+            sums = column_sums(self.moments[indices]).tolist()
+        else:
+            if (running := self._running.get(first)) is None:
+                running = self._running[first] = np.add.accumulate(self.moments[first:], axis=0)
+            sums = running[last - first].tolist()
         return line_from_list([self.weight * v for v in sums], *self.shift_xy)
 
     def farthest(self, indices: IndexArray, line: RoughLine) -> float:
@@ -259,8 +270,8 @@ def _settle_corner(
     np.abs(residuals, out=residuals)
     squares = residuals * residuals
     # cost[k]: the first k points to the first line, the rest to the second (k >= lowest).
-    head = np.cumsum(squares[0])
-    tail = np.cumsum(squares[1, ::-1])[::-1]
+    head = squares[0].cumsum()
+    tail = squares[1, ::-1].cumsum()[::-1]
     cost = head[lowest - 1 : size - lowest] + tail[lowest : size - lowest + 1]
     boundary = lowest + int(cost.argmin())
     union = np.arange(begin, end)

@@ -15,8 +15,9 @@ NaN that would poison a sum.
 
 from __future__ import annotations
 
-import functools
+from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Generic, TypeVar
 
 import numpy as np
 import numpy.typing as npt
@@ -79,31 +80,63 @@ def scan_points(
             f"ranges_m and angles_rad must be 1-D of one length, got {ranges.shape}"
             f" and {angles.shape}"
         )
+    directions, finite_angles = _BEAMS.get(angles, float(frame.yaw_rad))
     with np.errstate(invalid="ignore"):
-        valid = np.isfinite(ranges) & np.isfinite(angles) & (ranges > 0.0)
-        corrected = np.where(valid, ranges - range_offset_m, 0.0)
-        valid &= corrected > 0.0  # also drops a non-finite offset's nan
-    corrected = np.where(valid, corrected, 0.0)
-    directions, cos, sin = _beam_directions(angles.tobytes(), float(frame.yaw_rad))
+        valid = np.isfinite(ranges)
+        valid &= finite_angles
+        valid &= ranges > 0.0
+        if range_offset_m == 0.0:  # the ranges as they are (r - 0 is r): no echo drops
+            corrected = np.where(valid, ranges, 0.0)
+        else:
+            corrected = np.where(valid, ranges - range_offset_m, 0.0)
+            valid &= corrected > 0.0  # also drops a non-finite offset's nan
+            corrected = np.where(valid, corrected, 0.0)
+    # Column by column: numpy's loops over (N, 2) arrays run two elements at a time.
     xy = np.empty((ranges.shape[0], 2), dtype=np.float64)
-    np.multiply(corrected, cos, out=xy[:, 0])
-    np.multiply(corrected, sin, out=xy[:, 1])
-    xy += np.array([frame.x_m, frame.y_m])
+    for column, origin_m in ((0, frame.x_m), (1, frame.y_m)):
+        np.multiply(corrected, directions[:, column], out=xy[:, column])
+        xy[:, column] += origin_m
     return ScanPoints(xy, corrected, directions, valid, (float(frame.x_m), float(frame.y_m)))
 
 
-@functools.lru_cache(maxsize=8)
-def _beam_directions(angles: bytes, yaw_rad: float) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """The unit directions of the beams at ``angles`` (float64 bytes) turned by the
-    frame's yaw, as rows and as two contiguous columns; a beam whose angle is not finite
-    looks along the yaw. A scanner's angles and mount are the same scan after scan, and
-    these cosines and sines are a fair part of a whole scan's arithmetic: computed once,
-    shared read-only."""
-    beam_angles = np.frombuffer(angles, dtype=np.float64)
+_T = TypeVar("_T")
+
+
+class AngleCache(Generic[_T]):
+    """What is worked out from a scanner's beam angles and one number (the frame's yaw,
+    a threshold), kept for the next scans: a scanner's angles are the same scan after
+    scan. The few kept are found by comparing the angles' bytes, not by hashing them:
+    hashing a scan's 8 kB of angles costs more than comparing them with every entry.
+    The values are shared: make them read-only."""
+
+    def __init__(self, make: Callable[[FloatArray, float], _T], size: int = 8) -> None:
+        self._make = make
+        self._size = size
+        self._kept: list[tuple[bytes, float, _T]] = []
+
+    def get(self, angles: FloatArray, number: float) -> _T:
+        """``make(angles, number)``, or what it gave for equal arguments before."""
+        key = np.asarray(angles, dtype=np.float64).tobytes()
+        for kept_key, kept_number, value in self._kept:
+            if kept_number == number and kept_key == key:
+                return value
+        value = self._make(np.frombuffer(key, dtype=np.float64), number)
+        self._kept.insert(0, (key, number, value))
+        del self._kept[self._size :]
+        return value
+
+
+def _beam_directions(beam_angles: FloatArray, yaw_rad: float) -> tuple[FloatArray, BoolArray]:
+    """The unit directions of the beams at ``beam_angles`` turned by the frame's yaw, as
+    rows, and which angles are finite; a beam whose angle is not finite looks along the
+    yaw. These cosines and sines are a fair part of a whole scan's arithmetic."""
+    finite = np.isfinite(beam_angles)
     with np.errstate(invalid="ignore"):
-        world = np.where(np.isfinite(beam_angles), beam_angles, 0.0) + yaw_rad
-    cos, sin = np.cos(world), np.sin(world)
-    directions = np.column_stack((cos, sin))
-    for array in (directions, cos, sin):
+        world = np.where(finite, beam_angles, 0.0) + yaw_rad
+    directions = np.column_stack((np.cos(world), np.sin(world)))
+    for array in (directions, finite):
         array.flags.writeable = False
-    return directions, cos, sin
+    return directions, finite
+
+
+_BEAMS = AngleCache(_beam_directions)

@@ -23,13 +23,13 @@ looped over by the caller.
 
 from __future__ import annotations
 
-import functools
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
 
+from appliance.perception.points import AngleCache
 from appliance.perception.types import BoolArray, FloatArray, RejectReason, ScannerModel
 
 
@@ -100,32 +100,30 @@ def segment_scan(
     count = int(valid.shape[0])
     if count == 0:
         return Segmentation((), {})
-    with np.errstate(over="ignore", invalid="ignore"):
+    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
         step = xy_m[1:] - xy_m[:-1]
         squared = step * step
         gaps = np.sqrt(squared[:, 0] + squared[:, 1])
-        if count > 1 and not gaps.max() < math.inf:  # beyond 1e154 m: hypot's care
+        if count > 1 and not np.maximum.reduce(gaps) < math.inf:  # beyond 1e154 m: hypot
             gaps = np.hypot(step[:, 0], step[:, 1])
-        step_sine, remaining_sine = _step_sines(
-            np.asarray(angles_rad, dtype=np.float64).tobytes(), params.lambda_rad
-        )
+        step_sine, remaining_sine = _STEP_SINES.get(angles_rad, params.lambda_rad)
         limits = ranges_m[:-1] * step_sine
         limits /= remaining_sine
         limits += 3.0 * scanner.sigma_m
         joined = valid[:-1] & valid[1:] & (gaps <= limits)
-    # A cluster starts at every valid beam not joined to its predecessor.
-    apart = ~joined
-    starts_flag = valid.copy()
-    starts_flag[1:] &= apart
-    ends_flag = valid.copy()
-    ends_flag[:-1] &= apart
-    starts = np.flatnonzero(starts_flag)
-    stops = np.flatnonzero(ends_flag) + 1
-    sizes = stops - starts
-    # Mean spacing per cluster from a running sum of the joined gaps.
-    travelled = np.zeros(count)
-    np.cumsum(np.where(joined, gaps, 0.0), out=travelled[1:])
-    with np.errstate(invalid="ignore", divide="ignore"):
+        # A cluster starts at every valid beam not joined to its predecessor.
+        apart = ~joined
+        starts_flag = valid.copy()
+        starts_flag[1:] &= apart
+        ends_flag = valid.copy()
+        ends_flag[:-1] &= apart
+        starts = starts_flag.nonzero()[0]
+        stops = ends_flag.nonzero()[0] + 1
+        sizes = stops - starts
+        # Mean spacing per cluster from a running sum of the joined gaps.
+        travelled = np.empty(count)
+        travelled[0] = 0.0
+        np.where(joined, gaps, 0.0).cumsum(out=travelled[1:])
         mean_spacing = (travelled[stops - 1] - travelled[starts]) / np.maximum(sizes - 1, 1)
     too_few = sizes < params.min_points
     dispersed = ~too_few & ~(mean_spacing <= params.max_mean_spacing_m)
@@ -142,14 +140,16 @@ def segment_scan(
     return Segmentation(tuple(kept), rejections)
 
 
-@functools.lru_cache(maxsize=8)
-def _step_sines(angles: bytes, lambda_rad: float) -> tuple[FloatArray, FloatArray]:
+def _step_sines(angles: FloatArray, lambda_rad: float) -> tuple[FloatArray, FloatArray]:
     """``sin Δφ`` and ``sin(λ − Δφ)`` of `breakpoint_distance_m` for the beams at
-    ``angles`` (float64 bytes): a scanner's angles are the same scan after scan."""
-    delta = np.diff(np.frombuffer(angles, dtype=np.float64))
+    ``angles``: a scanner's angles are the same scan after scan."""
+    delta = np.diff(angles)
     with np.errstate(invalid="ignore"):
         step = np.minimum(np.abs(delta), 0.999 * lambda_rad)
         sines = np.sin(step), np.sin(lambda_rad - step)
     for sine in sines:
         sine.flags.writeable = False
     return sines
+
+
+_STEP_SINES = AngleCache(_step_sines)

@@ -1,12 +1,14 @@
 """The filter's shortcuts give what the long way gives, to the last bit.
 
-The association works each innovation out once (``update_nearest_cylinder``), and the
-board's motion keeps each
-scanner's window's figures until the window changes: a docking simulation's results
-must not move by a bit for any of it.
+The association works each innovation out once (``update_nearest_cylinder``) and hands
+its prediction and Jacobian to the update (the NIS itself, in floats, is numpy's to
+rounding), and the board's motion keeps each scanner's window's figures until the window
+changes: a docking simulation's results must not move by a bit for any of it.
 """
 
 from __future__ import annotations
+
+import copy
 
 import numpy as np
 import pytest
@@ -17,8 +19,10 @@ from appliance.localization.board_motion import (
     BoardSighting,
     motion_between,
 )
+from appliance.localization.compound import wrap_angle_rad
 from appliance.localization.launcher_ekf import (
     LauncherEkf,
+    _residual,
     cylinder_measurement,
 )
 from appliance.localization.launcher_map import LauncherMap
@@ -92,3 +96,44 @@ def test_board_motion_kept_per_window_is_the_motion_worked_out_afresh() -> None:
             assert found is not None
             assert found.velocity.tobytes() == expected[0].tobytes()
             assert found.covariance.tobytes() == expected[1].tobytes()
+
+
+@pytest.mark.parametrize("sensor", sorted(SENSORS))
+@pytest.mark.parametrize("offset", [(0.0, 0.0), (0.02, 0.004), (-0.05, 0.01)])
+def test_an_update_is_filterpys_with_the_model_evaluated_where_it_asks(
+    sensor: str, offset: tuple[float, float]
+) -> None:
+    """The filter hands filterpy the prediction and Jacobian its NIS was worked out with;
+    filterpy evaluating the model itself, as the filter once let it, gives the same
+    state and covariance to the last bit."""
+    mine = _filter()
+    kf = copy.deepcopy(mine._kf)
+    z, _ = cylinder_measurement(mine.state, LANDMARKS[0], SENSORS[sensor])
+    z = z + np.array(offset)
+    assert mine.update_cylinder(z, CYL_COV, LANDMARKS[0], SENSORS[sensor]).accepted
+
+    def model(state: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return cylinder_measurement(state, LANDMARKS[0], SENSORS[sensor])
+
+    kf.update(z, lambda s: model(s)[1], lambda s: model(s)[0], R=CYL_COV, residual=_residual)
+    x = np.array(kf.x, dtype=float)
+    x[2] = wrap_angle_rad(float(x[2]))
+    assert mine.state.tobytes() == x.tobytes()
+    assert mine.covariance.tobytes() == (0.5 * (kf.P + kf.P.T)).tobytes()
+
+
+@pytest.mark.parametrize("sensor", sorted(SENSORS))
+def test_the_nis_is_numpys_to_rounding(sensor: str) -> None:
+    """The NIS is worked out in floats (2x2 and 2x3 matrices); numpy's products and solve
+    give it to rounding."""
+    ekf = _filter()
+    rng = np.random.default_rng(3)
+    for landmark in LANDMARKS:
+        z_hat, h = cylinder_measurement(ekf.state, landmark, SENSORS[sensor])
+        for _ in range(20):
+            z = z_hat + rng.normal(0.0, [0.05, 0.02])
+            r_cov = CYL_COV * rng.uniform(0.5, 2.0)
+            y = np.array([z[0] - z_hat[0], wrap_angle_rad(float(z[1] - z_hat[1]))])
+            expected = float(y @ np.linalg.solve(h @ ekf.covariance @ h.T + r_cov, y))
+            got = ekf.innovation(z, r_cov, landmark, SENSORS[sensor])
+            assert got == pytest.approx(expected, rel=1e-12)

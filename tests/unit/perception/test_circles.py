@@ -12,6 +12,7 @@ import scipy.optimize
 from hypothesis import given
 from hypothesis import strategies as st
 
+from appliance.perception.circle_search import radius_variance
 from appliance.perception.circles import (
     CircleFit,
     fit_circle_free,
@@ -227,3 +228,14 @@ def test_the_radius_check_decides_as_the_full_free_fit(seed: int) -> None:
         assert free_radius_mismatch(xy, known, (0.0, 0.0), SCANNER, 0.02, 3.0) == expected
         outcomes.add(expected is None)
     assert outcomes == {True, False}  # both answers were asked for
+
+
+@pytest.mark.parametrize("seed", range(10))
+def test_the_radius_checks_variance_is_the_free_covariances(seed: int) -> None:
+    """The radius check's σ comes from a sandwich in floats; it is the free fit's
+    covariance entry to rounding."""
+    xy = _arc(seed, n=int(np.random.default_rng(seed).integers(8, 40)))
+    fit = fit_circle_free(xy, (0.0, 0.0), SCANNER)
+    assert isinstance(fit, CircleFit) and fit._terms is not None and fit._beams is not None
+    variance = radius_variance(fit._beams, fit._terms, SCANNER)
+    assert variance == pytest.approx(fit.radius_sigma_m**2, rel=1e-12)

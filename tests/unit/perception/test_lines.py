@@ -10,8 +10,8 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from appliance.perception.line_fit import LineFit, fit_line, tls_line
-from appliance.perception.lines import LineParams, extract_lines, split_and_merge
+from appliance.perception.line_fit import LineFit, column_sums, fit_line, line_from_list, tls_line
+from appliance.perception.lines import LineParams, _Cluster, extract_lines, split_and_merge
 from appliance.perception.points import scan_points
 from appliance.perception.types import FitRejection, LineFeature, ScannerModel
 from drivers.geometry import Pose2D
@@ -264,3 +264,23 @@ def test_any_cluster_repeated_gives_a_line_or_a_rejection(
     for data in (xy, np.repeat(xy[:1], 5, axis=0)):
         result = fit_line(data, None, SCANNER)
         assert isinstance(result, FitRejection) or np.isfinite(result.covariance).all()
+
+
+def test_the_running_sums_are_the_sums_to_the_last_bit() -> None:
+    """Split-and-merge reads the sums of runs of points off running sums kept per start,
+    and any other subset's off `column_sums`: both add the rows in order, as
+    ``np.add.reduce`` does, so every rough line is the one the plain sums give."""
+    rng = np.random.default_rng(8)
+    for _ in range(30):
+        n = int(rng.integers(2, 300))
+        xy = rng.normal(0.0, rng.uniform(0.01, 5.0), (n, 2)) + rng.uniform(-20.0, 20.0, 2)
+        cluster = _Cluster(xy, SCANNER)
+        assert column_sums(xy).tobytes() == np.add.reduce(xy, axis=0).tobytes()
+        for _ in range(10):
+            a, b = sorted(int(v) for v in rng.integers(0, n, 2))
+            run = np.arange(a, b + 1)
+            subset = np.unique(rng.integers(a, b + 1, 5))
+            for indices in (run, subset):
+                sums = np.add.reduce(cluster.moments[indices], axis=0).tolist()
+                expected = line_from_list([cluster.weight * v for v in sums], *cluster.shift_xy)
+                assert cluster.line(indices) == expected

@@ -14,7 +14,7 @@ from drivers.geometry import Pose2D
 from drivers.lms111.mounted import MountedScan
 from drivers.lms111.scan import scan_from_ranges
 
-from .scenes import LEFT_MOUNT
+from .scenes import LEFT_MOUNT, SENSOR_ANGLES
 
 
 def test_identity_frame_is_the_sensor_frame() -> None:
@@ -107,3 +107,35 @@ def test_any_ranges_give_finite_points(ranges: list[float], offset: float) -> No
     points = scan_points(ranges, angles, Pose2D(1.0, 2.0, 0.5), range_offset_m=offset)
     assert np.isfinite(points.xy_m).all()
     assert (points.ranges_m[points.valid] > 0.0).all()
+
+
+def _straightforward_points(
+    ranges: np.ndarray, angles: np.ndarray, frame: Pose2D, offset: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The conversion as it was first written: every step on every beam, nothing kept."""
+    with np.errstate(invalid="ignore"):
+        valid = np.isfinite(ranges) & np.isfinite(angles) & (ranges > 0.0)
+        corrected = np.where(valid, ranges - offset, 0.0)
+        valid &= corrected > 0.0
+        corrected = np.where(valid, corrected, 0.0)
+        world = np.where(np.isfinite(angles), angles, 0.0) + frame.yaw_rad
+    xy = np.column_stack((corrected * np.cos(world), corrected * np.sin(world)))
+    return xy + np.array([frame.x_m, frame.y_m]), corrected, valid
+
+
+@pytest.mark.parametrize("offset", [0.0, 0.02, -0.01])
+def test_points_are_the_straightforward_conversions_to_the_last_bit(offset: float) -> None:
+    """The kept beam directions, and the shortcut without a range offset, change nothing:
+    two scanners' frames over the same angles, scan after scan, with odd beams."""
+    rng = np.random.default_rng(5)
+    angles = SENSOR_ANGLES.copy()
+    angles[7] = math.nan
+    for scan in range(6):
+        ranges = rng.uniform(0.0, 30.0, angles.shape)
+        ranges[rng.integers(0, len(ranges), 20)] = rng.choice([0.0, math.inf, math.nan, 0.01])
+        frame = (LEFT_MOUNT, Pose2D(5.8, -1.5, math.radians(-45.0)))[scan % 2]
+        points = scan_points(ranges, angles, frame, range_offset_m=offset)
+        xy, corrected, valid = _straightforward_points(ranges, angles, frame, offset)
+        assert points.xy_m.tobytes() == xy.tobytes()
+        assert points.ranges_m.tobytes() == corrected.tobytes()
+        assert (points.valid == valid).all()
