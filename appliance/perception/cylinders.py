@@ -136,7 +136,11 @@ def _width_problem(
     )
     if span > widened + allowed:
         return FitRejection(RejectReason.TOO_WIDE, _across(centre_m, span))
-    if span < widened - allowed:
+    # The first and the last beam on the arc each lie up to a step inside its tangents.
+    # A footprint wider than a step makes up for that (a beam whose footprint touches
+    # the cylinder reports it); thin rays do not, and their arc can look two steps short.
+    unseen = max(0.0, beam_step_rad - 0.5 * footprint_rad)
+    if span < widened - allowed - unseen:
         return FitRejection(RejectReason.TOO_NARROW, _across(centre_m, span))
     return None
 

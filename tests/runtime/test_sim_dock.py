@@ -74,3 +74,13 @@ def test_the_command_refuses_a_vehicle_that_cannot_dock() -> None:
     out = CliRunner().invoke(dock, ["--config", "husky", "--json"])
     assert out.exit_code == 2
     assert "docking needs a flat-bed vehicle" in out.output
+
+
+@pytest.mark.slow
+def test_the_ideal_scanner_docks_from_the_centred_start() -> None:
+    """Thin rays 10 m out: the landmarks span a handful of beams, and an arc could look
+    two steps short of its tangents (found: this run ended 'cylinder_right not seen
+    where the map puts it' after 5 s)."""
+    result = run_dock(load_config("flatbed"), DockRunParams(ideal_scanner=True))
+    assert result.success, result.reason
+    assert max(abs(t) for t in result.teeth_lateral_m) <= 0.002

@@ -168,12 +168,10 @@ def test_a_false_cylinder_or_a_person_beside_a_landmark_is_kept_out(
     if offset_m - radius_m < LocalizerParams().cylinder_roi_m:  # else outside every region
         assert kept_out(localizer) > kept_out(clear)
     assert max(errors[-50:]) < 0.005
-    if offset_m - radius_m < 0.4:
-        # so close that the landmark itself is no longer isolated: it is not used, and
-        # the estimate says so (the pose rests on the other cylinder and the board)
-        assert statuses[-1] is LocalizationStatus.DEGRADED
-    else:
-        assert statuses[-1] is LocalizationStatus.OK
+    # The landmark itself stays in use: only the clutter is kept out. (This once
+    # expected `degraded` at 0.45 m, which came from thin-ray arcs of the landmark
+    # itself refused as too narrow, a fault the clear site showed too.)
+    assert statuses[-1] is LocalizationStatus.OK
 
 
 def test_a_scanner_that_goes_silent_degrades_the_estimate() -> None:

@@ -222,3 +222,23 @@ def test_a_near_cylinder_is_found_from_its_tangents(distance_m: float, ideal: bo
         circles = extract_features(ranges, SENSOR_ANGLES, ORIGIN, params).circles
         assert len(circles) == 1
         assert math.hypot(circles[0].cx_m - distance_m, circles[0].cy_m - 0.1) < 0.01
+
+
+def test_thin_rays_find_the_landmark_far_out_wherever_the_beams_fall() -> None:
+    """With no footprint, each end of the arc can lose up to a beam step to the space
+    between two beams: at 16 m the 0.3 m landmark spans about four 0.25° beams and may
+    look two steps narrower than its tangents. It is still the landmark, for every
+    placement of the beams across one step (found: `dbw sim dock --ideal-scanner` lost
+    the far cylinder from the centred start)."""
+    step = float(SENSOR_ANGLES[1] - SENSOR_ANGLES[0])
+    distance_m = 16.0
+    for k in range(24):
+        bearing = 0.2 + step * k / 24
+        exact = circle_ranges(
+            distance_m * math.cos(bearing), distance_m * math.sin(bearing), 0.15, SENSOR_ANGLES
+        )
+        ranges = exact.copy()  # no noise: only where the beams fall is varied
+        hit = np.flatnonzero(exact > 0.0)
+        points = scan_points(ranges, SENSOR_ANGLES)
+        found = fit_cylinder(points, (int(hit[0]), int(hit[-1]) + 1), PARAMS, THIN)
+        assert isinstance(found, CircleFeature), (k, found)
