@@ -260,26 +260,29 @@ def first_strong_echo(
     beams, returns = ranges_m.shape
     if beams == 0:
         return np.zeros(0), np.zeros(0)
+    size = beams * returns
     hit = ranges_m > 0.0
     far = np.where(hit, ranges_m, _NO_RETURN_M)  # sorts last, and far from any return
-    row_starts = returns * np.arange(beams)  # offsets of each row in the flat arrays
-    flat_order = (np.argsort(far, axis=1) + row_starts[:, None]).ravel()
-    sorted_m = far.ravel()[flat_order]
-    sorted_energy = np.where(hit, energy, 0.0).ravel()[flat_order]
-    starts = np.empty(beams * returns, dtype=np.bool_)
+    row_starts = np.arange(0, size, returns)  # offsets of each row in the flat arrays
+    flat_order = far.argsort(axis=1)
+    flat_order += row_starts[:, None]
+    flat_order = flat_order.ravel()
+    sorted_m = far.ravel().take(flat_order)
+    sorted_energy = np.where(hit, energy, 0.0).ravel().take(flat_order)
+    starts = np.empty(size, dtype=np.bool_)
     np.greater(sorted_m[1:] - sorted_m[:-1], pulse_merge_m, out=starts[1:])  # np.diff, cheaper
     starts[row_starts] = True
     # One bin per echo over the whole array: row r's echoes are r * returns + 0, 1, ...
-    echo = np.cumsum(starts) - 1
-    echo += row_starts.repeat(returns) - echo[row_starts].repeat(returns)
-    size = beams * returns
-    echo_energy_ = np.bincount(echo, sorted_energy, size).reshape(beams, returns)
-    moment = np.bincount(echo, sorted_energy * sorted_m, size).reshape(beams, returns)
+    echo = np.add.accumulate(starts, dtype=np.intp)
+    shift = row_starts - echo.take(row_starts)
+    echo += shift.repeat(returns)
+    echo_energy_ = np.bincount(echo, sorted_energy, size)
+    moment = np.bincount(echo, sorted_energy * sorted_m, size)
     strong = echo_energy_ >= min_energy if min_energy > 0.0 else echo_energy_ > 0.0
-    first = np.argmax(strong, axis=1)
-    rows = np.arange(beams)
-    found = strong[rows, first]
-    found_energy = np.where(found, echo_energy_[rows, first], 0.0)
-    found_m = moment[rows, first] / np.where(found, found_energy, 1.0)
+    first = strong.reshape(beams, returns).argmax(axis=1)
+    first += row_starts  # each row's first strong echo, in the flat arrays
+    found = strong.take(first)
+    found_energy = np.where(found, echo_energy_.take(first), 0.0)
+    found_m = moment.take(first) / np.where(found, found_energy, 1.0)
     found_m[~found] = 0.0
     return found_m, found_energy

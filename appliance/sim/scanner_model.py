@@ -14,8 +14,9 @@ data sheet's noise and systematic error, the beam footprint that mixes the range
 beam straddling an edge, the remission the device needs at each range, the mount error.
 The central ray of every beam is cast as an ideal scanner would; only beams near an edge
 (where the central rays' hit shape jumps between neighbours) or on a post are cast again
-as a fan of sub-rays across their footprint (``footprint_beams``), so a scan costs about
-twice the thin-ray one rather than seven times. A
+as a fan of sub-rays across their footprint (``scanner_footprint``), so a scan costs about
+twice the thin-ray one rather than seven times. Both casts share the shapes' terms and
+take few array operations (``raycast_scan``), with `raycast`'s results. A
 beam with no echo returns exactly 0, as the device does, and never gets noise. Time and
 the random generator are arguments, so a test (or a replay) gets the same scan for the
 same inputs.
@@ -30,23 +31,14 @@ from collections.abc import Callable
 import numpy as np
 from numpy.typing import NDArray
 
-from appliance.sim.raycast import (
-    NO_HIT,
-    RayHits,
-    beam_directions,
-    inside_any_circle,
-    nearer_of,
-    nearest_hits,
-    nearest_hits_along,
-    remission_of,
-)
-from appliance.sim.scanner_errors import (
-    TYPICAL_LMS111,
-    BeamFootprint,
-    RemissionLimit,
-    ScannerErrors,
-    echo_energy,
-    first_strong_echo,
+from appliance.sim.raycast import NO_HIT, RayHits, beam_directions, inside_any_circle
+from appliance.sim.raycast_scan import ShapeTerms, nearest_hits_seen, shape_terms, with_walkers
+from appliance.sim.scanner_errors import TYPICAL_LMS111, ScannerErrors
+from appliance.sim.scanner_footprint import (
+    JUNCTION_STEP_M,
+    echoes,
+    footprint_beams,
+    footprint_echo,
 )
 from appliance.sim.site import ShapeArrays, Site
 from drivers.geometry import Pose2D
@@ -130,59 +122,76 @@ class RayCache:
         return hits
 
 
-_NO_SEGMENTS = np.empty((0, 4))
-_NO_SEGMENTS.flags.writeable = False
+__all__ = [
+    "DEVICE_FORWARD_RAD",
+    "JUNCTION_STEP_M",
+    "LMS111_MAX_RANGE_M",
+    "LMS111_START_ANGLE_RAD",
+    "LMS111_STEP_RAD",
+    "LMS111_STOP_ANGLE_RAD",
+    "RayCache",
+    "beam_angles_rad",
+    "footprint_beams",
+    "footprint_echo",
+    "render_scan",
+    "scanner_pose",
+]
 
 
-def _cast_with_cache(
-    cache: RayCache,
-    site: Site,
-    shapes: ShapeArrays,
-    pose: Pose2D,
-    world_angles: Callable[[], NDArray[np.float64]],
-    directions: Callable[[], NDArray[np.float64]],
-    layout: tuple[float, float, float],
-    max_range_m: float,
-) -> tuple[RayHits, NDArray[np.float64]]:
-    """``nearest_hits`` over ``shapes`` with the static ones from ``cache``; ``world_angles``
-    and their ``directions`` are only called (and should be cached by the caller) when
-    something must be cast: the static site and the walkers are cast along the same ones."""
+class _Scan:
+    """One scan's geometry, each part made on first use: a scanner at rest, whose static
+    hits are cached, needs the beams' directions and the shapes' terms only for a walker
+    or a footprint."""
+
+    def __init__(
+        self, pose: Pose2D, shapes: ShapeArrays, angles_rad: NDArray[np.float64], max_range_m: float
+    ) -> None:
+        self.pose, self.shapes, self.angles_rad = pose, shapes, angles_rad
+        self.max_range_m = max_range_m
+        self._directions: NDArray[np.float64] | None = None
+        self._terms: ShapeTerms | None = None
+
+    def terms(self) -> ShapeTerms:
+        """The shapes seen from the scanner, which must be outside every circle."""
+        if self._terms is None:
+            pose, shapes = self.pose, self.shapes
+            self._terms = shape_terms(pose.x_m, pose.y_m, shapes.segments, shapes.circles)
+        return self._terms
+
+    def directions(self) -> NDArray[np.float64]:
+        if self._directions is None:
+            self._directions = beam_directions(self.angles_rad)
+        return self._directions
+
+    def blind(self) -> RayHits:
+        """No echo at all: the scanner is inside a circle."""
+        beams = self.angles_rad.shape[0]
+        return RayHits(np.zeros(beams), np.full(beams, NO_HIT, dtype=np.int64))
+
+
+def _cast_with_cache(cache: RayCache, site: Site, scan: _Scan, key: tuple[float, ...]) -> RayHits:
+    """The scan's nearest hits, with the static shapes' from ``cache`` when it has them
+    for ``key``; the walkers are cast along the same beams and the nearer hit is taken."""
     static = site.static_shapes()
-    n_static = static.segments.shape[0] + static.circles.shape[0]
-    movers = shapes.circles[static.circles.shape[0] :]
-    key = (pose.x_m, pose.y_m, pose.yaw_rad, *layout, max_range_m)
-    if inside_any_circle(pose.x_m, pose.y_m, movers):
-        beams = len(world_angles())  # blinded by a walker: no echo at all
-        hits = RayHits(np.zeros(beams), np.full(beams, NO_HIT, dtype=np.int64))
-    else:
-        inside_static = inside_any_circle(pose.x_m, pose.y_m, static.circles)
+    walkers = slice(static.circles.shape[0], None)
+    pose = scan.pose
+    if inside_any_circle(pose.x_m, pose.y_m, scan.shapes.circles[walkers]):
+        return scan.blind()
+    inside_static = inside_any_circle(pose.x_m, pose.y_m, static.circles)
 
-        def cast_static() -> RayHits:
-            if inside_static:
-                return nearest_hits(
-                    pose.x_m, pose.y_m, world_angles(), static.segments, static.circles, max_range_m
-                )  # blinded
-            return nearest_hits_along(
-                pose.x_m, pose.y_m, directions(), static.segments, static.circles, max_range_m
-            )
+    def cast_static() -> RayHits:
+        if inside_static:
+            return scan.blind()
+        circles = slice(static.circles.shape[0])
+        return nearest_hits_seen(scan.terms(), scan.directions(), scan.max_range_m, circles)
 
-        hits = cache.static_hits(static, key, cast_static)
-        if movers.shape[0] and not inside_static:
-            moving = nearest_hits_along(
-                pose.x_m, pose.y_m, directions(), _NO_SEGMENTS, movers, max_range_m
-            )
-            hits = nearer_of(hits, moving, n_static)
-    n_segments, n_circles = shapes.segments.shape[0], shapes.circles.shape[0]
-    remission = remission_of(
-        hits, n_segments, n_circles, shapes.segment_remission, shapes.circle_remission
-    )
-    return hits, remission
-
-
-# Neighbouring central rays on different shapes whose ranges differ by less than this
-# meet at a corner (a board and its side board, two walls): the footprint there averages
-# ranges a few millimetres apart, so such a junction is not cast again.
-JUNCTION_STEP_M = 0.02
+    hits = cache.static_hits(static, key, cast_static)
+    if scan.shapes.circles.shape[0] > static.circles.shape[0] and not inside_static:
+        n_static = static.segments.shape[0] + static.circles.shape[0]
+        hits = with_walkers(
+            hits, scan.terms(), scan.directions(), scan.max_range_m, walkers, n_static
+        )
+    return hits
 
 
 def render_scan(
@@ -212,170 +221,43 @@ def render_scan(
     """
     pose = scanner_pose(vehicle_pose, errors.true_mount(mount))
     shapes = site.shapes_at(t_s)
-
-    @functools.cache
-    def world_angles() -> NDArray[np.float64]:
-        device_angles = _fixed_beam_angles_rad(start_angle_rad, stop_angle_rad, step_rad)
-        angles: NDArray[np.float64] = device_angles + (pose.yaw_rad - DEVICE_FORWARD_RAD)
-        return angles
-
-    @functools.cache
-    def directions() -> NDArray[np.float64]:
-        return beam_directions(world_angles())
-
+    device_angles = _fixed_beam_angles_rad(start_angle_rad, stop_angle_rad, step_rad)
+    scan = _Scan(pose, shapes, device_angles + (pose.yaw_rad - DEVICE_FORWARD_RAD), max_range_m)
     if cache is not None:
-        layout = (start_angle_rad, stop_angle_rad, step_rad)
-        hits, remission = _cast_with_cache(
-            cache, site, shapes, pose, world_angles, directions, layout, max_range_m
-        )
+        key = (pose.x_m, pose.y_m, pose.yaw_rad, start_angle_rad, stop_angle_rad, step_rad)
+        hits = _cast_with_cache(cache, site, scan, (*key, max_range_m))
+    elif inside_any_circle(pose.x_m, pose.y_m, shapes.circles):
+        hits = scan.blind()
     else:
-        hits = nearest_hits(
-            pose.x_m, pose.y_m, world_angles(), shapes.segments, shapes.circles, max_range_m
-        )
-        remission = remission_of(
-            hits,
-            shapes.segments.shape[0],
-            shapes.circles.shape[0],
-            shapes.segment_remission,
-            shapes.circle_remission,
-        )
-    ranges, remission = _echoes(
-        hits, remission, errors, pose, shapes, world_angles, step_rad, max_range_m
+        hits = nearest_hits_seen(scan.terms(), scan.directions(), max_range_m)
+    # What each shape number's surface remits, the last entry (index -1: none) 0.
+    table = np.concatenate([shapes.segment_remission, shapes.circle_remission, _NO_REMISSION])
+    ranges, remission = echoes(
+        hits,
+        table.take(hits.hit_index),
+        errors,
+        shapes.segments.shape[0],
+        scan.terms,
+        table,
+        scan.angles_rad,
+        step_rad,
+        max_range_m,
     )
-    if errors.ideal:
-        error_m: NDArray[np.float64] | float = 0.0
-    else:
-        error_m = errors.range_offset_m + errors.range_scale * ranges
-        if errors.noise_sigma_m > 0.0:
-            error_m = error_m + rng.normal(0.0, errors.noise_sigma_m, size=ranges.shape)
     # Misses stay exactly 0; a hit the errors push below 0 becomes a miss, as it would
     # on the device, and one pushed past the maximum range is reported at the maximum.
-    measured = np.where(ranges > 0.0, np.clip(ranges + error_m, 0.0, max_range_m), 0.0)
+    if errors.ideal:
+        measured = ranges + 0.0
+    else:
+        error_m = errors.range_scale * ranges
+        error_m += errors.range_offset_m
+        if errors.noise_sigma_m > 0.0:
+            error_m += rng.normal(0.0, errors.noise_sigma_m, size=ranges.shape)
+        measured = ranges + error_m
+    np.maximum(measured, 0.0, out=measured)  # np.clip, without its overhead
+    np.minimum(measured, max_range_m, out=measured)
+    measured = np.where(ranges > 0.0, measured, 0.0)
     return measured, np.where(measured > 0.0, remission, 0.0)
 
 
-def _echoes(
-    hits: RayHits,
-    remission: NDArray[np.float64],
-    errors: ScannerErrors,
-    pose: Pose2D,
-    shapes: ShapeArrays,
-    world_angles: Callable[[], NDArray[np.float64]],
-    step_rad: float,
-    max_range_m: float,
-) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """True ranges and remissions of the echoes the device detects (0 = none): the
-    central rays', the weak ones dropped, and the footprint's mix near edges."""
-    ranges, cast_remission = hits.ranges_m, remission
-    limit, footprint = errors.remission_limit, errors.footprint
-    if limit is not None:
-        weak = echo_energy(ranges, remission) < limit.min_energy
-        ranges = np.where(weak, 0.0, ranges)
-        remission = np.where(weak, 0.0, remission)
-    if footprint is None:
-        return ranges, remission
-    beams = footprint_beams(hits, shapes.segments.shape[0], footprint, step_rad, max_range_m)
-    if beams.size == 0:
-        return ranges, remission
-    ranges = np.array(ranges)  # the cast's arrays may be the cache's (read-only)
-    remission = np.array(remission)
-    central_m = hits.ranges_m[beams]
-    sub_m, sub_remission = _cast_footprints(
-        central_m, world_angles()[beams], pose, shapes, footprint, max_range_m
-    )
-    ranges[beams], remission[beams] = footprint_echo(
-        _with_centre(sub_m, central_m),
-        _with_centre(sub_remission, cast_remission[beams]),
-        footprint,
-        limit,
-    )
-    return ranges, remission
-
-
-def footprint_beams(
-    hits: RayHits, n_segments: int, footprint: BeamFootprint, step_rad: float, max_range_m: float
-) -> NDArray[np.intp]:
-    """The beams whose central ray does not stand for their footprint: cast them again.
-
-    Those that may reach across an edge: where neighbouring central rays hit different
-    shapes (or one misses) at ranges more than ``JUNCTION_STEP_M`` apart. A beam k beams
-    away from the edge reaches it if the footprint's half-angle at the nearer of the
-    edge's two ranges exceeds k beam steps; the farthest such reach over the scan is used
-    for every edge. And those on a circle (shapes from ``n_segments`` on): across a
-    post's curve the footprint's ranges differ by millimetres to centimetres.
-    """
-    ranges, index = hits.ranges_m, hits.hit_index
-    count = ranges.shape[0]
-    near = index >= n_segments
-    edges = np.flatnonzero(
-        (index[1:] != index[:-1]) & (np.abs(ranges[1:] - ranges[:-1]) > JUNCTION_STEP_M)
-    )
-    if edges.size == 0:
-        return np.flatnonzero(near)
-    before = np.where(ranges[edges] > 0.0, ranges[edges], max_range_m)
-    after = np.where(ranges[edges + 1] > 0.0, ranges[edges + 1], max_range_m)
-    reach = int(footprint.half_angle_rad(np.minimum(before, after)).max() // step_rad)
-    for k in range(min(reach, count) + 1):
-        near[np.maximum(edges - k, 0)] = True
-        near[np.minimum(edges + 1 + k, count - 1)] = True
-    return np.flatnonzero(near)
-
-
-def _cast_footprints(
-    central_m: NDArray[np.float64],
-    angles_rad: NDArray[np.float64],
-    pose: Pose2D,
-    shapes: ShapeArrays,
-    footprint: BeamFootprint,
-    max_range_m: float,
-) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """Ranges and remissions of every sub-ray but the central one, (beams, sub_rays - 1).
-
-    The fan's half-angle is the footprint's at the central ray's range (at the maximum
-    range for a beam whose central ray has no hit)."""
-    side = footprint.side_offsets
-    half = footprint.half_angle_rad(np.where(central_m > 0.0, central_m, max_range_m))
-    fan = (angles_rad[:, None] + half[:, None] * side[None, :]).ravel()
-    sub = nearest_hits(pose.x_m, pose.y_m, fan, shapes.segments, shapes.circles, max_range_m)
-    sub_remission = remission_of(
-        sub,
-        shapes.segments.shape[0],
-        shapes.circles.shape[0],
-        shapes.segment_remission,
-        shapes.circle_remission,
-    )
-    shape = (central_m.size, side.size)
-    return sub.ranges_m.reshape(shape), sub_remission.reshape(shape)
-
-
-def _with_centre(sides: NDArray[np.float64], centre: NDArray[np.float64]) -> NDArray[np.float64]:
-    """(beams, k - 1) side sub-rays and (beams,) central rays as (beams, k), centre between."""
-    beams, side_count = sides.shape
-    half = side_count // 2
-    full = np.empty((beams, side_count + 1))
-    full[:, :half] = sides[:, :half]
-    full[:, half] = centre
-    full[:, half + 1 :] = sides[:, half:]
-    return full
-
-
-def footprint_echo(
-    ranges_m: NDArray[np.float64],
-    remission: NDArray[np.float64],
-    footprint: BeamFootprint,
-    limit: RemissionLimit | None,
-) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """The echo of each beam from its sub-rays' (beams, sub_rays) hits: range and remission.
-
-    Each sub-ray carries its profile weight of the beam's energy; the returned remission
-    is the one a target filling the beam at the echo's range would need for the echo's
-    energy (a beam half on a board reports about half its remission). Without a
-    remission limit every hit counts, even of a black (0) surface.
-    """
-    _, weights = footprint.profile
-    if limit is None:
-        remission = np.maximum(remission, 1e-9)
-    energy = weights * echo_energy(ranges_m, remission)
-    min_energy = 0.0 if limit is None else limit.min_energy
-    echo_m, echo_energy_ = first_strong_echo(ranges_m, energy, footprint.pulse_merge_m, min_energy)
-    return echo_m, echo_energy_ * echo_m * echo_m
+_NO_REMISSION = np.zeros(1)
+_NO_REMISSION.flags.writeable = False
