@@ -78,7 +78,7 @@ class DockingParams:
     enter_persist_s: float = 0.5
     # Gains: yaw rate per radian of heading error; lateral speed per metre by which the
     # front end would meet the board off the axis. The settling limit (below) lets them
-    # be this high: measured with an exact pose, 0.4 both way took (a) 15 s from 4.8°
+    # be this high: measured with an exact pose, 0.4 for both took (a) 15 s from 4.8°
     # and (b) ended 0.8 m before the board from 0.9 m off.
     heading_gain_per_s: float = 1.0
     lateral_gain_per_s: float = 0.8
@@ -90,9 +90,9 @@ class DockingParams:
     # How far the wheels lag their command (the steering servo's time constant): while
     # they straighten, the error goes on changing for this long as well.
     steer_lag_s: float = 0.2
-    # A correction ends only with its wheels back within this of straight (the crab's
-    # direction of travel, the rear wheels' angle): from here straightening moves the
-    # heading by under 0.02° and the front end by under 1 mm at docking speeds.
+    # A correction ends only with its wheels back within this of straight (the crab
+    # angle, the rear wheels' angle): from here straightening moves the heading by
+    # under 0.02° and the front end by under 1 mm at docking speeds.
     settled_steer_rad: float = math.radians(0.5)
     # The straightening planned at this fraction of the rate limit: the margin for the
     # wheels' lag, a changing speed and a noisy error.
