@@ -15,8 +15,9 @@ Run: ``python -m benchmarks.bench_docking [RUNS [WORKERS [CONDITION ...]]]`` (10
 
 Figures per condition: success rate (docked, both teeth inside their troughs, no tooth at
 a trough misaligned), the lateral error at the teeth and the heading error (median, p95,
-max), pattern switches per approach (median, max), attempts, time per approach, and the
-real-time factor. Run: ``python -m benchmarks.bench_docking [RUNS] [WORKERS]``.
+max), pattern switches per approach (median, max), attempts, time per approach, the
+estimate's mean NEES against the truth per approach (whole, and within 2 m of the
+board; 3 if its covariance is right), real-time factor.
 """
 
 from __future__ import annotations
@@ -30,7 +31,7 @@ import numpy as np
 
 from appliance.config import load_config
 from appliance.guidance.docking import DockingParams
-from appliance.sim.dock_run import DockResult, DockRunParams, run_dock
+from appliance.sim.dock_run import NEAR_GAP_M, DockResult, DockRunParams, run_dock
 
 CONDITIONS = {
     "realistic, calibrated": DockRunParams(),
@@ -86,6 +87,12 @@ def report(name: str, results: list[DockResult]) -> None:
             failures[r.reason] = failures.get(r.reason, 0) + 1
     if failures:
         print(f"  not docked: {failures}")
+    for label, values in (
+        ("whole approach", [r.mean_nees for r in results]),
+        (f"within {NEAR_GAP_M:g} m of the board", [r.mean_nees_near for r in results]),
+    ):
+        kept = [v for v in values if math.isfinite(v)]
+        print(_figures(f"estimate's mean NEES per approach, {label} (3 if consistent)", kept, ""))
     print(_figures("simulated time per approach", [r.sim_time_s for r in results], "s"))
     print(_figures("real-time factor", [r.real_time_factor for r in results], "x"))
 

@@ -19,6 +19,10 @@ from appliance.config.models import VehicleKind
 from appliance.sim.dock_run import DockResult, DockRunParams, run_dock
 
 
+def _finite_or_none(value: float, digits: int) -> float | None:
+    return round(value, digits) if math.isfinite(value) else None
+
+
 def result_document(result: DockResult, params: DockRunParams) -> dict[str, object]:
     return {
         "success": result.success,
@@ -38,6 +42,8 @@ def result_document(result: DockResult, params: DockRunParams) -> dict[str, obje
         if math.isnan(result.estimate_error_m)
         else round(result.estimate_error_m * 1000.0, 2),
         "rejected_measurements": result.rejected,
+        "mean_nees": _finite_or_none(result.mean_nees, 3),
+        "mean_nees_near": _finite_or_none(result.mean_nees_near, 3),
         "start": {
             "x_m": -params.start_gap_m,
             "y_m": params.start_y_m,

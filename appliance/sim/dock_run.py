@@ -87,10 +87,32 @@ class DockResult:
     estimate_error_m: float  # the localizer's position error at the end (truth vs estimate)
     rejected: dict[str, int]
     final_speed_mps: float = 0.0  # the truth's: a run that ends stopped ends at 0
+    # The estimate's NEES against the truth, averaged over the control cycles it was
+    # used in: over the whole approach and within ``NEAR_GAP_M`` of the board (3 for a
+    # covariance that is right; NaN when there was none).
+    mean_nees: float = math.nan
+    mean_nees_near: float = math.nan
 
     @property
     def real_time_factor(self) -> float:
         return self.sim_time_s / self.wall_time_s if self.wall_time_s > 0 else math.inf
+
+
+# Where the gate's certainty check and the teeth's tolerance bite: the NEES there is
+# reported on its own.
+NEAR_GAP_M = 2.0
+
+
+def _nees(estimate: Pose2D, covariance: np.ndarray, truth: Pose2D) -> float:
+    """``eᵀ P⁻¹ e`` for the error of (x, y, ψ), the heading's wrapped."""
+    error = np.array(
+        [
+            estimate.x_m - truth.x_m,
+            estimate.y_m - truth.y_m,
+            math.remainder(estimate.yaw_rad - truth.yaw_rad, math.tau),
+        ]
+    )
+    return float(error @ np.linalg.solve(covariance, error))
 
 
 def run_dock(config: VehicleConfig, params: DockRunParams) -> DockResult:
@@ -148,6 +170,7 @@ def run_dock(config: VehicleConfig, params: DockRunParams) -> DockResult:
     t_s = 0.0
     reason = "timeout"
     lost_since_s: float | None = None
+    nees_sums, nees_counts = [0.0, 0.0], [0, 0]  # [far, near]
 
     def platform(s: VehicleState) -> Pose2D:
         return Pose2D(s.x_m, s.y_m, s.platform_yaw_rad)
@@ -173,6 +196,11 @@ def run_dock(config: VehicleConfig, params: DockRunParams) -> DockResult:
                     break
             else:
                 lost_since_s = None
+                if estimate.centre_covariance is not None:
+                    nees = _nees(estimate.centre_pose, estimate.centre_covariance, platform(state))
+                    near = docking_errors(platform(state), dock)[0] <= NEAR_GAP_M
+                    nees_sums[near] += nees
+                    nees_counts[near] += 1
                 order = controller.update(estimate.centre_pose, estimate.centre_covariance, t_s)
                 command_speed, pattern = order.speed_mps, order.pattern
                 front_rad, rear_rad = order.front_steer_rad, order.rear_steer_rad
@@ -219,4 +247,6 @@ def run_dock(config: VehicleConfig, params: DockRunParams) -> DockResult:
         estimate_error_m=estimate_error,
         rejected=dict(final.rejected),
         final_speed_mps=state.speed_mps,
+        mean_nees=sum(nees_sums) / sum(nees_counts) if sum(nees_counts) else math.nan,
+        mean_nees_near=nees_sums[1] / nees_counts[1] if nees_counts[1] else math.nan,
     )
