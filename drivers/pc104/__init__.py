@@ -1,8 +1,9 @@
 """The CAN link to the vehicle's PC104 lower-level controller (Qian et al., section 2.2.2).
 
 ``pc104.dbc`` is the contract; :mod:`.protocol` the sans-I/O codec; :mod:`.monitor` the
-receive checks; :mod:`.client` the daemon's asyncio end. The simulated controller that
-speaks the same contract lives with the simulator (``appliance.sim.twins.pc104``).
+receive checks; :mod:`.client` the daemon's asyncio end and :mod:`.sender` the frames it
+sends. The simulated controller that speaks the same contract lives with the simulator
+(``appliance.sim.twins.pc104``).
 docs/protocols/pc104-can.md describes the link for whoever wires the vehicle.
 """
 

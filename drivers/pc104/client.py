@@ -14,7 +14,8 @@ replaced by STOP the client holds STOP until the control loop sends STOP itself.
 PC104 applies the same rule on its side (it stops 100 ms after commands stop, then waits
 for a STOP), so whether motion resumes is always the control loop's explicit decision.
 The pose and the expected pose (:meth:`send_pose`) follow each command frame under the
-same age rule, for a PC104 that closes the steering loop itself.
+same age rule, for a PC104 that closes the steering loop itself. Those frames and their
+rules are :class:`drivers.pc104.sender.HlSender`'s; this module runs the bus around them.
 
 Failures never end ``run``: a full transmit buffer drops the frame, a lost interface
 closes and reopens the bus with backoff, a restarted PC104 is resynchronised by the
@@ -35,13 +36,7 @@ import structlog
 from structlog.typing import FilteringBoundLogger
 
 from drivers.pc104 import protocol
-from drivers.pc104.client_core import (
-    ClientParams,
-    LinkHealth,
-    Pc104Topics,
-    RateMeter,
-    command_to_send,
-)
+from drivers.pc104.client_core import ClientParams, LinkHealth, Pc104Topics, RateMeter
 from drivers.pc104.endpoint import BusEndpoint
 from drivers.pc104.errorframes import BusCondition, bus_condition
 from drivers.pc104.link import BusFactory, BusLink, Episode, LinkLost, bus_factory, next_deadline
@@ -50,7 +45,6 @@ from drivers.pc104.messages import (
     HighLevelState,
     HlExpectedPose,
     HlHeartbeat,
-    HlMessage,
     HlPose,
     Inclinometer,
     MotionCommand,
@@ -61,11 +55,11 @@ from drivers.pc104.messages import (
 )
 from drivers.pc104.monitor import MonitorParams, ReceiveMonitor, RxVerdict
 from drivers.pc104.protocol import ErrorReason, Pc104ProtocolError
+from drivers.pc104.sender import HlSender
 
 log: FilteringBoundLogger = structlog.get_logger(component="pc104")
 
 MAX_FRAMES_PER_TURN = 256
-_SENT = (MotionCommand, HlHeartbeat, HlPose, HlExpectedPose)
 _BUS_STATES = {can.BusState.PASSIVE: BusCondition.PASSIVE, can.BusState.ERROR: BusCondition.BUS_OFF}
 
 
@@ -100,21 +94,13 @@ class Pc104Client:
                 )
         self._status_id = protocol.spec_for(Pc104Status).frame_id
         self._heartbeat_period_s = protocol.spec_for(HlHeartbeat).period_s
-        self._command: MotionCommand | None = None
-        self._command_s = -math.inf
-        self._holding = False
-        self._state = HighLevelState.STANDBY
-        self._pose: HlPose | None = None
-        self._expected: HlExpectedPose | None = None
-        self._poses_set_s = self._poses_sent_s = -math.inf
-        self._counters = {protocol.spec_for(t).frame_id: 0 for t in _SENT}
+        self._sender = HlSender(self.params, log, self._note_error)
         self._link: BusLink | None = None
         self._send_loss: LinkLost | None = None  # a send for a caller found the link lost
         self._next_command_s = self._next_heartbeat_s = -math.inf
-        self._last_command_sent_s = -math.inf
         self._status: Pc104Status | None = None
         self._errors = {reason: 0 for reason in ErrorReason}
-        self._sent = self._dropped = self._received = self._reconnects = 0
+        self._received = self._reconnects = 0
         self._in_rate, self._out_rate = RateMeter(), RateMeter()
         self._frame_condition = BusCondition.ACTIVE
         self._polled_condition = BusCondition.ACTIVE
@@ -123,35 +109,21 @@ class Pc104Client:
         self._last_error = ""
         self._ep_link = Episode(log, "pc104_link_down")
         self._ep_stale = Episode(log, "pc104_status_stale")
-        self._ep_drops = Episode(log, "pc104_send_drops")
         self._ep_bus = Episode(log, "pc104_bus_error_state")
-        self._ep_hold = Episode(log, "pc104_holding_stop")
         self._ep_version = Episode(log, "pc104_protocol_mismatch")
         self._ep_rx = {i: Episode(log, "pc104_receive_errors") for i in self.monitors}
 
     # ---- what the control loop calls --------------------------------------------------
     def send_command(self, command: MotionCommand, now_s: float | None = None) -> None:
         """Make ``command`` the one sent every period; raises CommandRefused at once (in
-        the caller) if it is outside the DBC, so it never becomes the latest command."""
-        protocol.encode(command, 0)
-        previous = self._command
-        self._command = command
-        self._command_s = self._clock() if now_s is None else now_s
-        # A change of pattern (STOP above all) or a lower speed goes on the wire now, not at
-        # the next tick of the periodic sender: a fault, an override or a brake tap must
-        # reach the PC104 within the control cycle. Other changes wait for the tick unless
-        # half a period has passed, which phase-locks the frames to the control loop
-        # without flooding the bus.
+        the caller) if it is outside the DBC, so it never becomes the latest command. An
+        urgent change goes on the wire now (:meth:`HlSender.set_command`)."""
+        urgent = self._sender.set_command(command, self._clock() if now_s is None else now_s)
         link = self._link
         if link is None:
             return
         now = self._clock()
-        urgent = (
-            previous is None
-            or previous.pattern is not command.pattern
-            or abs(command.speed_mps) < abs(previous.speed_mps)
-        )
-        due = urgent or now - self._last_command_sent_s >= self.params.command_period_s / 2
+        due = self._sender.command_due(urgent, now)
         if due and self._send_for_caller(lambda: self._send_command_frame(link, now)):
             self._next_command_s = now + self.params.command_period_s
 
@@ -164,22 +136,15 @@ class Pc104Client:
         the command: a control loop that stops calling stops them too, and a PC104 that
         closes the loop on pose then stops the vehicle. Raises CommandRefused at once for
         a value outside the DBC."""
-        now = self._clock() if now_s is None else now_s
-        if pose is not None:
-            protocol.encode(pose, 0)
-        if expected is not None:
-            protocol.encode(expected, 0)
-        self._pose, self._expected = pose, expected
-        self._poses_set_s = now
+        self._sender.set_poses(pose, expected, self._clock() if now_s is None else now_s)
 
     def set_state(self, state: HighLevelState) -> None:
         """The high-level state announced in HL_Heartbeat; a change is sent at once."""
-        changed = state is not self._state
-        self._state = state
+        changed = self._sender.set_state(state)
         link = self._link
         if changed and link is not None:
             now = self._clock()
-            if self._send_for_caller(lambda: self._transmit(link, HlHeartbeat(state), now)):
+            if self._send_for_caller(lambda: self._sender.send_heartbeat(link, now)):
                 self._next_heartbeat_s = now + self._heartbeat_period_s
 
     def _send_for_caller(self, send: Callable[[], None]) -> bool:
@@ -217,13 +182,13 @@ class Pc104Client:
             malformed_frames=self._errors[ErrorReason.LENGTH] + self._errors[ErrorReason.RANGE],
             counter_errors=sum(m.counts.counter_errors for m in monitors),
             late_frames=sum(m.counts.late for m in monitors),
-            send_drops=self._dropped,
+            send_drops=self._sender.dropped,
             resyncs=sum(m.counts.resyncs for m in monitors),
             reconnects=self._reconnects,
             bus_condition=max(self._frame_condition, self._polled_condition),
             control_source=None if status is None else status.control_source,
             peer_ready=status is not None and status.ready and not status_monitor.stale(now_s),
-            holding_stop=self._holding,
+            holding_stop=self._sender.holding,
             stale_since_s=self._stale_since_s,
             last_error=self._last_error,
         )
@@ -292,7 +257,7 @@ class Pc104Client:
                     self._next_command_s, self.params.command_period_s, now_s
                 )
             if now_s >= self._next_heartbeat_s:
-                self._transmit(link, HlHeartbeat(self._state), now_s)
+                self._sender.send_heartbeat(link, now_s)
                 self._next_heartbeat_s = next_deadline(
                     self._next_heartbeat_s, self._heartbeat_period_s, now_s
                 )
@@ -313,47 +278,13 @@ class Pc104Client:
                 handled += 1
                 message = link.poll() if handled < MAX_FRAMES_PER_TURN else None
 
-    # ---- sending ----------------------------------------------------------------------
+    # ---- sending (the frames and their rules: drivers.pc104.sender) -----------------
     def _send_command_frame(self, link: BusLink, now_s: float) -> None:
-        command, why, self._holding = command_to_send(
-            self._command,
-            self._command_s,
-            now_s,
-            self.params.command_timeout_s,
-            self._status,
-            not self.monitors[self._status_id].stale(now_s),
-            self._holding,
-        )
-        if why and self._command is not None:
-            self._ep_hold.occur(now_s, reason=why)
-        elif not why:
-            self._ep_hold.clear(now_s)
-        self._last_command_sent_s = now_s
-        self._transmit(link, command, now_s)
-        # The poses ride with the command, but at their own period at most: a control loop
-        # that sends commands faster (a command frame goes out early on a change) must not
-        # make them faster than the DBC's 20 ms.
-        if now_s - self._poses_sent_s < 0.75 * self.params.command_period_s:
-            return
-        if now_s - self._poses_set_s > self.params.command_timeout_s:
-            return
-        for message in (self._pose, self._expected):
-            if message is not None:
-                self._transmit(link, message, now_s)
-                self._poses_sent_s = now_s
+        status_fresh = not self.monitors[self._status_id].stale(now_s)
+        self._sender.send_command_frame(link, now_s, self._status, status_fresh)
 
-    def _transmit(self, link: BusLink, message: HlMessage, now_s: float) -> None:
-        frame_id = protocol.spec_for(type(message)).frame_id
-        counter = self._counters[frame_id]
-        self._counters[frame_id] = (counter + 1) % protocol.COUNTER_MODULO
-        arbitration_id, data = protocol.encode(message, counter)
-        if link.send(arbitration_id, data):
-            self._sent += 1
-            self._ep_drops.clear(now_s, total_drops=self._dropped)
-        else:
-            self._dropped += 1
-            self._last_error = f"send dropped: {link.last_send_error}"
-            self._ep_drops.occur(now_s, error=str(link.last_send_error))
+    def _note_error(self, why: str) -> None:
+        self._last_error = why
 
     # ---- receiving --------------------------------------------------------------------
     def _on_message(self, message: can.Message, now_s: float) -> None:
@@ -430,7 +361,7 @@ class Pc104Client:
     def _watch(self, link: BusLink, now_s: float) -> None:
         self._update_stale(now_s)
         self._in_rate.update(now_s, self._received)
-        self._out_rate.update(now_s, self._sent)
+        self._out_rate.update(now_s, self._sender.sent)
         if now_s >= self._next_poll_s:
             self._next_poll_s = now_s + self.params.bus_state_poll_s
             try:
