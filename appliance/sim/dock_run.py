@@ -175,12 +175,15 @@ def run_dock(config: VehicleConfig, params: DockRunParams) -> DockResult:
     def platform(s: VehicleState) -> Pose2D:
         return Pose2D(s.x_m, s.y_m, s.platform_yaw_rad)
 
+    # The truth where the loop stands: set again after every world step.
+    truth = platform(state)
+    gap = docking_errors(truth, dock)[0]
     while t_s < params.timeout_s:
         for name in mounts:
             silenced = name == params.silence_scanner and t_s >= params.silence_at_s
             if t_s + 1e-9 >= next_scan[name] and not silenced:
                 ranges, _ = render_scan(
-                    site, t_s, platform(state), mounts[name], rng=rngs[name],
+                    site, t_s, truth, mounts[name], rng=rngs[name],
                     errors=errors[name], step_rad=step_rad, cache=caches[name],
                 )  # fmt: skip
                 localizer.update(name, ranges, sensor_angles, t_s, t_s)
@@ -197,8 +200,8 @@ def run_dock(config: VehicleConfig, params: DockRunParams) -> DockResult:
             else:
                 lost_since_s = None
                 if estimate.centre_covariance is not None:
-                    nees = _nees(estimate.centre_pose, estimate.centre_covariance, platform(state))
-                    near = docking_errors(platform(state), dock)[0] <= NEAR_GAP_M
+                    nees = _nees(estimate.centre_pose, estimate.centre_covariance, truth)
+                    near = gap <= NEAR_GAP_M
                     nees_sums[near] += nees
                     nees_counts[near] += 1
                 order = controller.update(estimate.centre_pose, estimate.centre_covariance, t_s)
