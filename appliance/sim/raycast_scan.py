@@ -18,7 +18,8 @@ tried: it halves the arithmetic but adds more calls than it saves here.
 from __future__ import annotations
 
 import threading
-from typing import NamedTuple
+from collections.abc import Callable
+from typing import NamedTuple, TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
@@ -51,24 +52,31 @@ class _Views(threading.local):
 _VIEWS = _Views()
 
 
-def _floats(key: str, rows: int, cols: int) -> NDArray[np.float64]:
-    views = _VIEWS.floats
+_Array = TypeVar("_Array", NDArray[np.float64], NDArray[np.bool_])
+
+
+def _kept(
+    views: dict[tuple[str, int, int], _Array],
+    make: Callable[[str, int, int], _Array],
+    key: str,
+    rows: int,
+    cols: int,
+) -> _Array:
+    """The view last handed out for (key, rows, cols), else a new one from ``make``."""
     view = views.get((key, rows, cols))
     if view is None:
         if len(views) >= _KEPT_VIEWS:
             views.clear()
-        view = views[key, rows, cols] = _SCRATCH.float_array(key, rows, cols)
+        view = views[key, rows, cols] = make(key, rows, cols)
     return view
+
+
+def _floats(key: str, rows: int, cols: int) -> NDArray[np.float64]:
+    return _kept(_VIEWS.floats, _SCRATCH.float_array, key, rows, cols)
 
 
 def _flags(key: str, rows: int, cols: int) -> NDArray[np.bool_]:
-    views = _VIEWS.flags
-    view = views.get((key, rows, cols))
-    if view is None:
-        if len(views) >= _KEPT_VIEWS:
-            views.clear()
-        view = views[key, rows, cols] = _SCRATCH.flag_array(key, rows, cols)
-    return view
+    return _kept(_VIEWS.flags, _SCRATCH.flag_array, key, rows, cols)
 
 
 class ShapeTerms(NamedTuple):
