@@ -15,6 +15,7 @@ and reported in the ``heartbeats`` log and in ``dbw status``.
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Callable
 from typing import Any, Protocol
@@ -31,6 +32,8 @@ log = get_logger("control")
 
 # A command outlives its cycle by this many periods, then the boards stop hearing it.
 LEASE_PERIODS = 3
+# A cycle this many periods late (or a step this long) is a stall, logged every time.
+STALL_PERIODS = 5
 
 
 class CommandSink(Protocol):
@@ -126,6 +129,42 @@ class StepTimes:
         return self._s.percentiles([99])[0] * 1e3
 
 
+class SlowCycleLog:
+    """Logs a late wake-up or a step longer than the period, at most once per second.
+
+    A stall shows afterwards only as stale inputs, and those blame the devices; this
+    line says the loop itself was late or slow, by how much, and how often since the last
+    line, so an incident can be told from a device that stopped talking. A stall of
+    ``STALL_PERIODS`` or more is always logged: it is the one an incident needs.
+    """
+
+    def __init__(self, min_interval_s: float = 1.0) -> None:
+        self.min_interval_s = min_interval_s
+        self._last_s = -math.inf
+        self._suppressed = 0
+
+    def reset(self) -> None:
+        self._last_s = -math.inf
+        self._suppressed = 0
+
+    def update(self, now_s: float, late_ms: float, step_ms: float, period_ms: float) -> None:
+        if late_ms < period_ms and step_ms < period_ms:
+            return
+        stall = max(late_ms, step_ms) >= STALL_PERIODS * period_ms
+        if now_s - self._last_s < self.min_interval_s and not stall:
+            self._suppressed += 1
+            return
+        log.warning(
+            "control_cycle_slow",
+            late_ms=round(late_ms, 1),
+            step_ms=round(step_ms, 1),
+            period_ms=round(period_ms, 1),
+            earlier_unlogged=self._suppressed,
+        )
+        self._last_s = now_s
+        self._suppressed = 0
+
+
 class ControlLoop:
     """Runs ``core.step`` at ``rate_hz``; a supervised, critical service."""
 
@@ -147,6 +186,7 @@ class ControlLoop:
         self._clock = clock
         self.on_output: list[Callable[[CoreOutput], None]] = []
         self.halted = False
+        self.slow_cycles = SlowCycleLog()
 
     @property
     def lease_s(self) -> float:
@@ -161,7 +201,10 @@ class ControlLoop:
         """One cycle; public so tests and benchmarks can drive the loop with a fake clock."""
         started = self._clock()
         output = self.core.step(self.inputs.read(now_s), now_s)
-        self.step_times.update(self._clock() - started)
+        step_s = self._clock() - started
+        self.step_times.update(step_s)
+        period_ms = self.ticker.period_s * 1e3
+        self.slow_cycles.update(now_s, self.ticker.last_late_s * 1e3, step_s * 1e3, period_ms)
         if not self.halted:
             for sink in self.sinks:
                 sink.send(output)
@@ -177,6 +220,7 @@ class ControlLoop:
         # Every (re)start begins in BOOT: a restarted loop never resumes an engagement.
         self.core.reset()
         self.ticker.reset()
+        self.slow_cycles.reset()
         log.info("control_loop_started", rate_hz=round(self.rate_hz, 3))
         while True:
             now_s = await self.ticker.tick()

@@ -128,6 +128,8 @@ class FixedRateTicker:
         self._next_s: float | None = None
         self._early: asyncio.Future[bool] | None = None
         self.early_wakes = 0
+        # How late the last wake-up was against its schedule (0 for an early wake-up).
+        self.last_late_s = 0.0
         # The deadline kept to the microsecond (appliance/timerfd.py), when the clock is
         # the kernel's monotonic one; a fake clock's deadlines mean nothing to the kernel.
         self._timerfd = open_timerfd() if clock is time.monotonic else None
@@ -169,6 +171,7 @@ class FixedRateTicker:
         self._next_s = None
         self._early = None
         self.early_wakes = 0
+        self.last_late_s = 0.0
         self.timerfd_wakes = 0
         self.stats.reset()
         self._unwatch()
@@ -243,12 +246,14 @@ class FixedRateTicker:
                 self._early = None
             if woken_early:  # an extra cycle: the schedule and the statistics are kept
                 self.early_wakes += 1
+                self.last_late_s = 0.0
                 return self._clock()
         else:
             await asyncio.sleep(0)  # stay cancellable and fair even when late
         actual_s = self._clock()
         scheduled_s = self._next_s
         missed = max(int((actual_s - scheduled_s) // self.period_s), 0)
+        self.last_late_s = actual_s - scheduled_s
         self.stats.update(scheduled_s, actual_s, missed)
         self._next_s = scheduled_s + (missed + 1) * self.period_s
         return actual_s

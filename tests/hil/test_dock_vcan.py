@@ -139,6 +139,53 @@ def sim_config(tmp_path: Path) -> Path:
     return path
 
 
+# How many times the operator may clear an error the whole machine caused by stalling.
+STALL_RECOVERIES = 2
+
+
+class Operator:
+    """Clears an error that a stall of the one shared CPU latched, as an operator would.
+
+    User-mode Linux runs the daemon, the simulated vehicle, candump and this test on one
+    CPU of the host, and a host that is busy elsewhere can stop all of them at once for
+    a few hundred milliseconds (seen in CI: every input 400-412 ms old at one instant and
+    fresh 15 ms later, the devices having kept talking). The daemon is right to latch
+    that as an error: its loop did not run. What the operator does then is what the mode
+    machine asks: manual override once the faults are gone, then engage again. Only that
+    signature is cleared, at most ``STALL_RECOVERIES`` times, each one printed; any other
+    error, or a fault still active, stays a failure.
+    """
+
+    def __init__(self, bench: Path) -> None:
+        self.bench = bench
+        self.recoveries: list[list[str]] = []
+
+    def clear_stall(self, document: dict[str, Any], engaged: bool) -> bool:
+        """True if it cleared a stall's error (and re-engaged when ``engaged``)."""
+        if document.get("mode") != "error" or document.get("faults"):
+            return False
+        history = document.get("fault_history") or []
+        if not history or len(self.recoveries) >= STALL_RECOVERIES:
+            return False
+        last_raised = max(float(f["raised_s"]) for f in history)
+        burst = [f for f in history if last_raised - float(f["raised_s"]) < 0.1]
+        stall = all(
+            str(f["key"]).startswith("stale:")
+            and f.get("cleared_s") is not None
+            and float(f["cleared_s"]) - float(f["raised_s"]) < 1.0
+            for f in burst
+        )
+        if not stall:
+            return False
+        self.recoveries.append([str(f["detail"]) for f in burst])
+        print(f"[dock over vcan] a stall latched an error, cleared by the operator: {burst}")
+        assert ask(self.bench, {"op": "press", "button": "manual_override"})["ok"]
+        if engaged:
+            hold = {"op": "hold", "button": "engage", "seconds": DOCK_TIMEOUT_S + 30}
+            assert ask(self.bench, hold)["ok"]
+        return True
+
+
 def collapsed(values: list[str]) -> list[str]:
     return [v for i, v in enumerate(values) if i == 0 or values[i - 1] != v]
 
@@ -183,8 +230,11 @@ def test_a_docking_approach_over_vcan(vcan_channel: str, tmp_path: Path) -> None
             )  # fmt: skip
         procs.append(daemon)
 
+        operator = Operator(bench)
+
         def engageable() -> bool:
             document = status(control)
+            operator.clear_stall(document, engaged=False)
             return document.get("mode") == "ready" and not document.get("engage_blockers")
 
         explained(
@@ -195,6 +245,7 @@ def test_a_docking_approach_over_vcan(vcan_channel: str, tmp_path: Path) -> None
 
         def docked() -> bool:
             document = status(control)
+            operator.clear_stall(document, engaged=True)
             phase = str(docking(document).get("phase", ""))
             if phase and (not phases or phases[-1] != phase):
                 phases.append(phase)
