@@ -12,7 +12,8 @@ The velocity direction at the geometric centre follows from the wheel angles
 (``tan(beta) = (tan(phi_f) - tan(phi_r)) / 2`` for a centre midway between the axles).
 
 Actuators are not ideal: steering follows its command with a first-order lag and a rate
-limit, traction is a lagged acceleration from throttle and brake. The flat-bed's upper
+limit, traction is a lagged acceleration from the throttle, and the brake's force builds
+up with its own lag (zero unless the vehicle's plant says otherwise). The flat-bed's upper
 platform (where the scanners are) lags the chassis in yaw when turning, as Qian et al.
 report; its pose is what the simulated scanners see.
 
@@ -40,6 +41,10 @@ class VehicleParams:
     max_accel_mps2: float = 1.0
     max_decel_mps2: float = 3.0
     traction_time_constant_s: float = 0.4
+    # Brake force builds up (and releases) with this lag; 0: at once. The Husky's
+    # cable-pulled brake is not instantaneous (Stanley et al.); the flat-bed's PC104
+    # drives its own brake and the sim keeps it immediate.
+    brake_time_constant_s: float = 0.0
     drag_per_s: float = 0.05  # rolling resistance, as a fraction of speed per second
     max_speed_mps: float = 6.0
     # Upper platform vs chassis (flat-bed): yaw offset gained per rad of chassis rotation,
@@ -86,6 +91,7 @@ class VehicleState:
     rear_steer_rad: float = 0.0  # positive = counter-steer direction
     platform_yaw_offset_rad: float = 0.0
     odometer_m: float = 0.0
+    brake_level: float = 0.0  # 0..1, what the brake applies now (lags its command)
 
     @property
     def platform_yaw_rad(self) -> float:
@@ -151,7 +157,10 @@ def step(
     drive_mps2 -= params.drag_per_s * state.speed_mps
     accel = _approach(state.accel_mps2, drive_mps2, dt_s, params.traction_time_constant_s, 1e9)
     speed = state.speed_mps + accel * dt_s
-    braking_mps = max(0.0, min(1.0, brake)) * params.max_decel_mps2 * dt_s
+    brake_level = _approach(
+        state.brake_level, max(0.0, min(1.0, brake)), dt_s, params.brake_time_constant_s, 1e9
+    )
+    braking_mps = brake_level * params.max_decel_mps2 * dt_s
     speed = math.copysign(max(0.0, abs(speed) - braking_mps), speed)
     speed = max(-params.max_speed_mps, min(params.max_speed_mps, speed))
 
@@ -189,4 +198,5 @@ def step(
         rear_steer_rad=rear,
         platform_yaw_offset_rad=platform_offset,
         odometer_m=state.odometer_m + abs(speed) * dt_s,
+        brake_level=brake_level,
     )
