@@ -14,8 +14,10 @@ from appliance.cli.common import CONFIG_OPTION, load_or_exit
 from appliance.cli.config import config
 from appliance.cli.control import CONTROL_COMMANDS
 from appliance.cli.features import features
+from appliance.cli.gnss import gnss
 from appliance.cli.lms111 import lms111
 from appliance.cli.localize import localize
+from appliance.cli.route import route
 from appliance.cli.sim import sim
 from appliance.logs import LEVELS, configure_logging
 
@@ -64,6 +66,8 @@ cli.add_command(calibration)
 cli.add_command(calibrate)
 cli.add_command(features)
 cli.add_command(localize)
+cli.add_command(gnss)
+cli.add_command(route)
 for _command in CONTROL_COMMANDS:
     cli.add_command(_command)
 
