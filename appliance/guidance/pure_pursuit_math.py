@@ -407,6 +407,36 @@ def path_curvature_per_m(path: Polyline, projection: PathProjection, half_window
     return 0.0 if sides <= 0.0 else 2.0 * cross / sides
 
 
+def goal_shift_m(
+    path: Polyline, from_arc_m: float, lookahead_m: float, half_window_m: float
+) -> float:
+    """How far left to move the goal so that the arc through it has the path's curvature
+    at ``from_arc_m`` instead of the look-ahead's weighted mean (see PursuitParams).
+
+    A path ahead of a vehicle on it is, to first order, ``y(L) = int_0^L (L - u) k(u) du``
+    sideways of its tangent, and the arc through that point has curvature ``2 y(L) / L^2``;
+    the shift is ``L^2 k(0) / 2 - y(L)``, zero where the curvature does not change. The
+    curvature is the Menger one over +-``half_window_m`` (a polyline's lives in its
+    vertices), sampled every quarter metre; past the path's ends it is taken as straight.
+    """
+    if lookahead_m <= 0.0:
+        return 0.0
+    samples = max(4, math.ceil(lookahead_m / 0.25))
+    u = np.linspace(0.0, lookahead_m, samples + 1)
+    at = from_arc_m + u
+    arc, xs, ys = path.arc_m, path.points_m[:, 0], path.points_m[:, 1]
+    ax, ay = np.interp(at - half_window_m, arc, xs), np.interp(at - half_window_m, arc, ys)
+    bx, by = np.interp(at, arc, xs), np.interp(at, arc, ys)
+    cx, cy = np.interp(at + half_window_m, arc, xs), np.interp(at + half_window_m, arc, ys)
+    cross = (bx - ax) * (cy - ay) - (by - ay) * (cx - ax)
+    sides = np.hypot(bx - ax, by - ay) * np.hypot(cx - bx, cy - by) * np.hypot(cx - ax, cy - ay)
+    kappa = np.divide(2.0 * cross, sides, out=np.zeros_like(cross), where=sides > 1e-12)
+    weights = lookahead_m - u
+    integrand = weights * kappa
+    offset_m = float(np.sum(0.5 * (integrand[1:] + integrand[:-1]) * np.diff(u)))
+    return 0.5 * lookahead_m**2 * float(kappa[0]) - offset_m
+
+
 def predict_pose(
     pose: Pose2D, forward_mps: float, lateral_mps: float, yaw_rate_radps: float, horizon_s: float
 ) -> Pose2D:

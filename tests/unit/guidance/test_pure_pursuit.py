@@ -24,6 +24,7 @@ from appliance.guidance.pure_pursuit_math import (
     Polyline,
     counter_steer_tan_ratio,
     eq2_vs_eq3_difference,
+    goal_shift_m,
     path_curvature_per_m,
     point_at_arc_length,
     predict_pose,
@@ -211,8 +212,8 @@ def test_schedule_is_linear_between_its_limits() -> None:
     assert schedule.lookahead_m(0.5) == 3.0
     assert schedule.lookahead_m(2.0) == 5.0
     assert schedule.lookahead_m(10.0) == 8.0
-    assert PARAMS.lookahead_m(2.2) == pytest.approx(3.2)  # the defaults: 1 m + 1 s * v
-    assert PARAMS.lookahead_m(4.47) == pytest.approx(5.47)
+    assert PARAMS.lookahead_m(2.2) == pytest.approx(2.5)  # the defaults: 0.5 m + 0.5 s * v,
+    assert PARAMS.lookahead_m(4.47) == pytest.approx(2.735)  # never below 2.5 m
 
 
 def test_lookahead_floor_comes_from_the_turning_radius() -> None:
@@ -396,7 +397,7 @@ def test_goal_past_the_end_is_flagged() -> None:
         _on_straight(0.0, x_m=2.0), 2.2, path, PathProjection(0, 2 / 3), 0.02
     )
     assert out.goal_beyond_end
-    assert (out.goal_x_m, out.goal_y_m) == pytest.approx((2.0 + 3.2 + 2.2 * 0.15, 0.0))
+    assert (out.goal_x_m, out.goal_y_m) == pytest.approx((2.0 + 2.5 + 2.2 * 0.15, 0.0))
     assert out.front_steer_rad == 0.0
 
 
@@ -581,4 +582,35 @@ def test_sideslip_compensation_removes_the_steady_error_on_a_15_m_arc() -> None:
     )
     assert abs(steady[True]) < abs(steady[False])
     assert abs(steady[True]) < 0.01  # measured ~0.0 cm
-    assert steady[False] < -0.2  # outside the curve: measured -39 cm
+    assert steady[False] < -0.1  # outside the curve: measured -15 cm (L = 2.7 m)
+
+
+def _straight_then_arc(straight_m: float, radius_m: float, spacing_m: float = 0.02) -> np.ndarray:
+    """A straight along +x, then a left arc of ``radius_m`` tangent to it (exact points)."""
+    line = np.column_stack(
+        (np.arange(0.0, straight_m, spacing_m), np.zeros(int(straight_m / spacing_m)))
+    )
+    angles = np.arange(0.0, 1.5, spacing_m / radius_m)
+    arc = np.column_stack((straight_m + radius_m * np.sin(angles), radius_m * (1 - np.cos(angles))))
+    return np.vstack((line, arc))
+
+
+@pytest.mark.parametrize(("arc_ahead_m", "lookahead_m"), [(1.0, 4.0), (2.5, 4.0), (0.5, 2.7)])
+def test_the_goal_shift_undoes_the_weighted_mean_of_an_arc_beginning_ahead(
+    arc_ahead_m: float, lookahead_m: float
+) -> None:
+    # Curvature 0 at the anchor, 1/R from arc_ahead_m on: the arc through the unshifted
+    # goal curves by 2/L^2 * int_a^L (L - u)/R du = (L - a)^2 / (L^2 R); the shift that
+    # brings it back to the anchor's 0 is -(L - a)^2 / (2 R).
+    radius = 15.0
+    path = Polyline.from_points(_straight_then_arc(10.0, radius))
+    shift = goal_shift_m(path, 10.0 - arc_ahead_m, lookahead_m, half_window_m=0.4)
+    expected = -((lookahead_m - arc_ahead_m) ** 2) / (2 * radius)
+    assert shift == pytest.approx(expected, rel=0.03)
+
+
+def test_no_goal_shift_where_the_curvature_does_not_change() -> None:
+    on_arc = Polyline.from_points(_straight_then_arc(2.0, 20.0))
+    assert abs(goal_shift_m(on_arc, 5.0, 3.0, half_window_m=0.5)) < 1e-4
+    straight = Polyline.from_points(np.array([[0.0, 0.0], [50.0, 0.0]]))
+    assert goal_shift_m(straight, 10.0, 5.0, half_window_m=2.0) == 0.0
