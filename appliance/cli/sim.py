@@ -18,6 +18,7 @@ import click
 import structlog
 
 from appliance.cli.sim_dock import dock
+from appliance.cli.sim_track import track
 from appliance.config import ConfigError, VehicleConfig, load_config
 from appliance.config.atomic import write_text_atomic
 from appliance.config.calibration_file import write_calibration
@@ -258,3 +259,4 @@ def sim(
 
 
 sim.add_command(dock)
+sim.add_command(track)
