@@ -22,6 +22,7 @@ from typing import Any, Protocol
 
 from appliance.core.core import ControlCore, CoreOutput
 from appliance.core.inputs import ControlInputs, LinkCounts
+from appliance.gnss_input import GNSS_POSE_TOPIC
 from appliance.logs import get_logger
 from appliance.supervisor import ServiceContext
 from appliance.timing import FixedRateTicker, SampleWindow
@@ -66,6 +67,8 @@ class TopicInputs:
         # The steering pot travels in the steering board's telemetry; it has its own limit.
         ages["steering.pot"] = ages.get("board.steering", float("inf"))
         panel = self.topics.get("board.panel").latest()
+        # Only a vehicle with a receiver has the topic; asking for it would register one.
+        gnss = self.topics.get(GNSS_POSE_TOPIC).latest() if GNSS_POSE_TOPIC in ages else None
         return ControlInputs(
             ages_s=ages,
             steering=self._latest("board.steering"),
@@ -77,6 +80,8 @@ class TopicInputs:
             pc104_link=self.link_counts() if self.link_counts is not None else LinkCounts(),
             scans={side: self._latest(f"scan.{side}") for side in ("left", "right")},
             service_faults=self.service_faults() if self.service_faults is not None else {},
+            gnss=None if gnss is None else gnss.value,
+            gnss_seq=None if gnss is None else gnss.seq,
         )
 
 

@@ -23,7 +23,8 @@ COMMAND_NAMES: Final[tuple[str, ...]] = (
     "hold",
     "release",
 )
-OPS: Final[tuple[str, ...]] = ("status", "command")
+OPS: Final[tuple[str, ...]] = ("status", "command", "route")
+MAX_ROUTE_NAME: Final = 64
 MAX_LINE_BYTES: Final = 8 * 1024
 
 
@@ -48,11 +49,19 @@ class CommandRequest:
     name: str
 
 
-Request = StatusRequest | CommandRequest
+@dataclass(frozen=True)
+class RouteRequest:
+    """Select the route the `route` autopilot follows (the paper's GUI did this)."""
+
+    select: str
+
+
+Request = StatusRequest | CommandRequest | RouteRequest
 
 _FIELDS: Final[dict[str, frozenset[str]]] = {
     "status": frozenset({"op"}),
     "command": frozenset({"op", "name"}),
+    "route": frozenset({"op", "select"}),
 }
 
 
@@ -85,6 +94,14 @@ def decode_request(line: bytes) -> Request:
         )
     if op == "status":
         return StatusRequest()
+    if op == "route":
+        select = message.get("select")
+        if not isinstance(select, str) or not 0 < len(select) <= MAX_ROUTE_NAME:
+            raise RequestError(
+                f"route needs 'select': a route name of 1 to {MAX_ROUTE_NAME} characters, "
+                f"got {_short(select)}"
+            )
+        return RouteRequest(select)
     name = message.get("name")
     if name not in COMMAND_NAMES:
         what = (

@@ -32,6 +32,7 @@ from typing import Any, Final, Protocol
 from appliance.control_protocol import (
     MAX_LINE_BYTES,
     RequestError,
+    RouteRequest,
     StatusRequest,
     decode_request,
     encode_message,
@@ -60,6 +61,10 @@ class ControlApi(Protocol):
 
     def request(self, name: str) -> tuple[bool, str]:
         """Ask for one of :data:`COMMAND_NAMES`; (accepted, message). Must not block."""
+        ...
+
+    def select_route(self, name: str) -> tuple[bool, str]:
+        """Select the route the autopilot follows; (accepted, message). Must not block."""
         ...
 
 
@@ -352,7 +357,24 @@ class ControlServer:
             except Exception as exc:
                 log.error("control_status_failed", error=repr(exc), exc_info=exc)
                 return error_reply(f"the daemon could not produce its status: {exc!r}")
+        if isinstance(request, RouteRequest):
+            return self._select_route(request.select, session)
         return self._command(request.name, session)
+
+    def _select_route(self, name: str, session: _Session) -> dict[str, Any]:
+        try:
+            accepted, message = self.api.select_route(name)
+        except Exception as exc:
+            log.error("route_select", route=name, error=repr(exc), exc_info=exc)
+            return error_reply(f"the daemon failed to select route {name!r}: {exc!r}")
+        log.info(
+            "route_select",
+            route=name,
+            verdict="accepted" if accepted else "refused",
+            message=message,
+            **session.peer.as_log_fields(),
+        )
+        return {"ok": True, "accepted": bool(accepted), "message": str(message)}
 
     def _command(self, name: str, session: _Session, cause: str = "client") -> dict[str, Any]:
         try:

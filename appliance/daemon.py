@@ -414,6 +414,9 @@ class DaemonControlApi:
     def request(self, name: str) -> tuple[bool, str]:
         return self._daemon.core.request(name, self._daemon.clock())
 
+    def select_route(self, name: str) -> tuple[bool, str]:
+        return self._daemon.core.select_route(name)
+
 
 def load_vehicle_calibration(config: VehicleConfig) -> tuple[Calibration | None, str]:
     """The calibration, or None and why: the daemon still runs, but will not leave SELF_CHECK."""

@@ -67,8 +67,10 @@ def status_document(
     event_loop_worst: Mapping[str, Any],
     services: dict[str, str],
     now_s: float,
+    links: Mapping[str, str] | None = None,
 ) -> dict[str, Any]:
-    """What `dbw status` shows: the core's view plus inputs, loop figures, services."""
+    """What `dbw status` shows: the core's view plus inputs, loop figures, services, and
+    (given ``links``, `vehicle_io.link_summary`) one line per device link."""
     doc: dict[str, Any] = {"vehicle": vehicle, "uptime_s": round(uptime_s, 3)}
     doc.update(core.status(now_s))
     ages = topics.ages_s(now_s)
@@ -88,6 +90,8 @@ def status_document(
     doc["loop"] = {**loop, "work_deferred": work_deferred}
     doc["event_loop"] = {**event_loop.as_dict(), "since_start": event_loop_worst}
     doc["services"] = services
+    if links is not None:
+        doc["links"] = dict(links)
     if core.calibration_problem:
         doc["calibration"] = core.calibration_problem
     return doc

@@ -49,6 +49,9 @@ BENCH_SOCKET_NAME = "bench.sock"
 # it would to the daemon on the vehicle, where the simulated world does not exist.
 SIM_NICE_INCREMENT = 5
 BOARD_NAMES = ("steering", "throttle", "brake", "panel")
+# The child's twins behind ``sim://NAME`` ports, each a tty symlink in its directory (the
+# GNSS/INS receiver's only when the config's devices.gnss.port asks for it).
+SIM_PORT_NAMES = (*BOARD_NAMES, "gnss")
 
 
 def lower_priority(pid: int, increment: int) -> int | None:
@@ -91,15 +94,18 @@ class SimProcess:
         self.starts = 0
 
     def port_path(self, port: str) -> str:
-        """``sim://NAME`` -> the tty symlink the child's board twin publishes."""
+        """``sim://NAME`` -> the tty symlink the child's twin publishes (a board, or gnss)."""
         name = port.removeprefix(SIM_PORT_PREFIX)
-        if not port.startswith(SIM_PORT_PREFIX) or name not in BOARD_NAMES:
-            raise ValueError(f"no simulated board for port {port!r}; known: {BOARD_NAMES}")
+        if not port.startswith(SIM_PORT_PREFIX) or name not in SIM_PORT_NAMES:
+            raise ValueError(f"no simulated device for port {port!r}; known: {SIM_PORT_NAMES}")
         return os.path.join(self.directory, name)
 
     @property
-    def can_endpoint(self) -> CanEndpoint:
-        """Where the daemon's PC104 client finds the child's simulated USB-CAN adapter."""
+    def can_endpoint(self) -> CanEndpoint | None:
+        """Where the daemon's PC104 client finds the child's simulated USB-CAN adapter;
+        None for a vehicle without a PC104 (speed by pedals), whose child runs no PC104 twin."""
+        if self.config.speed_path != "pc104":
+            return None
         return CanEndpoint(
             interface=CanInterface.SLCAN,
             channel=os.path.join(self.directory, CAN_ADAPTER_NAME),
@@ -114,6 +120,8 @@ class SimProcess:
 
     def command(self, config_file: str, ready_fd: int) -> list[str]:
         level, as_json = current_log_settings()
+        can = self.can_endpoint
+        can_args = [] if can is None else ["--can-slcan", can.channel]
         return [
             self.python,
             "-m",
@@ -127,8 +135,7 @@ class SimProcess:
             config_file,
             "--pty-dir",
             self.directory,
-            "--can-slcan",
-            self.can_endpoint.channel,
+            *can_args,
             "--ready-fd",
             str(ready_fd),
             "--exit-on-stdin-eof",

@@ -4,7 +4,8 @@ The same assembly serves two uses. ``dbw run --config sim`` runs it inside the d
 (the PC104 twin on python-can's in-process ``virtual`` bus, so no kernel support is
 needed); ``dbw sim`` runs it on its own, as separate endpoints a daemon on another
 process connects to exactly as to hardware: LMS111s on TCP ports, the PC104 on a
-SocketCAN interface (vcan), the actuator boards on pseudo-terminals.
+SocketCAN interface (vcan), the actuator boards and (with ``devices.gnss.port =
+"sim://gnss"``) the GNSS/INS receiver on pseudo-terminals.
 """
 
 from __future__ import annotations
@@ -19,10 +20,11 @@ from dataclasses import dataclass, field
 import can as can_lib
 
 from appliance.config import VehicleConfig
-from appliance.config.models import CanEndpoint, ColaDialect
+from appliance.config.models import CanEndpoint, ColaDialect, Positioning
 from appliance.sim.scanner_errors import draw_scanner_errors, noise_seed
 from appliance.sim.site_file import load_site
 from appliance.sim.twins.board_set import ActuatorTwins
+from appliance.sim.twins.gnss import GnssTwin, GnssTwinParams
 from appliance.sim.twins.lms111 import Lms111Twin
 from appliance.sim.twins.pc104 import Pc104Twin
 from appliance.sim.twins.pc104_core import TwinParams
@@ -37,9 +39,12 @@ from drivers.pc104 import protocol
 from drivers.pc104.endpoint import CanInterface
 from drivers.pc104.link import BusFactory, bus_factory
 from drivers.pc104.slcan import SlcanAdapterBus
+from drivers.ptylink import SIM_PORT_PREFIX
 from safety.watchdog import RestartPolicy
 
 TWIN_HEARTBEAT_DEADLINE_S = 1.0
+GNSS_SIM_PORT = f"{SIM_PORT_PREFIX}gnss"
+GNSS_TWIN_SEED = 0  # the receiver's noise: one stream for every run, like a bench recording
 
 
 @dataclass
@@ -48,9 +53,20 @@ class Simulator:
     scanner_twins: dict[str, Lms111Twin] = field(default_factory=dict)
     pc104_twin: Pc104Twin | None = None
     board_twins: ActuatorTwins | None = None
+    gnss_twin: GnssTwin | None = None
     services: list[ServiceSpec] = field(default_factory=list)
 
+    def port_path(self, port: str) -> str:
+        """``sim://NAME`` -> the tty path of that twin (a board, or ``sim://gnss``)."""
+        if port == GNSS_SIM_PORT and self.gnss_twin is not None:
+            return self.gnss_twin.port_path
+        if self.board_twins is None:
+            raise ValueError(f"no simulated device for port {port!r}")
+        return self.board_twins.port_path(port)
+
     def close(self) -> None:
+        if self.gnss_twin is not None:  # its link lives in the boards' directory
+            self.gnss_twin.close()
         if self.board_twins is not None:
             self.board_twins.close()
 
@@ -165,7 +181,49 @@ def build_simulator(
             await asyncio.sleep(period_s)
 
     simulator.services.append(twin_service("sim.boards", run_boards, policy))
+    gnss = config.devices.gnss
+    if gnss is not None and gnss.port == GNSS_SIM_PORT:
+        _add_gnss_twin(simulator, config.positioning, boards.directory, policy)
     return simulator
+
+
+def antenna_truth(
+    state: VehicleState, positioning: Positioning
+) -> tuple[float, float, float, float]:
+    """(east_m, north_m, yaw_rad, speed_mps) of the antenna: the centre moved by the
+    configured lever arm, turned with the chassis. A receiver reports where its antenna
+    is, and the route source takes the lever arm back off; a twin reporting the centre
+    would hide an error in that step."""
+    forward_m, left_m = positioning.antenna_forward_m, positioning.antenna_left_m
+    cos_yaw, sin_yaw = math.cos(state.yaw_rad), math.sin(state.yaw_rad)
+    east_m = state.x_m + forward_m * cos_yaw - left_m * sin_yaw
+    north_m = state.y_m + forward_m * sin_yaw + left_m * cos_yaw
+    return east_m, north_m, state.yaw_rad, state.speed_mps
+
+
+def _add_gnss_twin(
+    simulator: Simulator, positioning: Positioning, directory: str, policy: RestartPolicy
+) -> None:
+    """The receiver at ``directory``/gnss, sampling the world's true pose at its own rate
+    (10 Hz, 5 cm noise: `GnssTwinParams`' clean RTK receiver), in the frame of the config's
+    origin so that the daemon's local frame and the world's coincide."""
+    origin = positioning.origin
+    params = GnssTwinParams()
+    if origin is not None:
+        params = GnssTwinParams(
+            origin_lat_deg=origin.lat_deg, origin_lon_deg=origin.lon_deg, origin_alt_m=origin.alt_m
+        )
+    twin = GnssTwin(os.path.join(directory, "gnss"), params, seed=GNSS_TWIN_SEED)
+    simulator.gnss_twin = twin
+    world = simulator.world
+
+    def truth(_now_s: float) -> tuple[float, float, float, float]:
+        return antenna_truth(world.state, positioning)
+
+    async def run_gnss(beat: Callable[[], None]) -> None:
+        await _beating_while(twin.run(truth), beat)
+
+    simulator.services.append(twin_service("sim.gnss", run_gnss, policy))
 
 
 async def _beating_while(work: Awaitable[None], beat: Callable[[], None]) -> None:

@@ -11,7 +11,8 @@ Drivers keep beating while they reconnect: whether a *device* is there is a ques
 input staleness for the safety layer; the supervisor's heartbeat answers whether the
 *software* is alive. The links that actuate (PC104, actuator boards) are critical
 services: if their software keeps failing, the daemon latches an error; the scanners
-are not, since nothing actuates from them yet.
+are not, since nothing actuates from them yet, nor is the GNSS/INS receiver (the route
+source refuses a lost or degraded fix itself, and a vehicle may carry one only to log).
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ from appliance.config import VehicleConfig, parts
 from appliance.config.models import SimPlacement
 from appliance.core.core import CoreOutput
 from appliance.core.inputs import LinkCounts
+from appliance.gnss_input import GnssInput
 from appliance.logs import get_logger
 from appliance.sim_process import SimProcess
 from appliance.simulator import Simulator, build_simulator, lms111_dialect
@@ -45,6 +47,7 @@ from drivers.lms111.session import Lms111ConfigError
 from drivers.pc104.client import Pc104Client
 from drivers.pc104.endpoint import CanInterface
 from drivers.pc104.messages import MotionCommand, MotionPattern
+from drivers.ptylink import SIM_PORT_PREFIX
 from drivers.topics import Topic
 from safety.safe_stop import SafeCommand, SafeStopTarget
 from safety.watchdog import RestartPolicy
@@ -71,6 +74,7 @@ class VehicleIO:
     boards: BoardClients | None = None
     pc104: Pc104Client | None = None
     scanners: dict[str, Lms111Client] = field(default_factory=dict)
+    gnss: GnssInput | None = None
     # Deferrable work waits here for the control cycle due (the daemon attaches its ticker).
     work_slot: ControlSlot = field(default_factory=lambda: ControlSlot(BULK_WORK_BUDGET_S))
     _closers: list[Callable[[], None]] = field(default_factory=list)
@@ -143,26 +147,37 @@ def build_vehicle_io(config: VehicleConfig, policy: RestartPolicy) -> VehicleIO:
             )
         )
         # The drivers reach the child as hardware: its SLCAN adapter, its ptys.
-        devices = config.devices.model_copy(update={"can": sim_process.can_endpoint})
-        config = config.model_copy(update={"devices": devices})
+        if sim_process.can_endpoint is not None:
+            devices = config.devices.model_copy(update={"can": sim_process.can_endpoint})
+            config = config.model_copy(update={"devices": devices})
         resolve = sim_process.port_path
     elif config.simulation.enabled:
-        if config.devices.can.interface is not CanInterface.VIRTUAL:
+        if uses_pc104(config) and config.devices.can.interface is not CanInterface.VIRTUAL:
             raise ValueError(
                 "an inline simulated vehicle runs its PC104 twin in this process, on "
                 "python-can's virtual bus: set devices.can.interface = 'virtual' (or "
                 "simulation.placement = 'process')"
             )
-        simulator = build_simulator(config, policy, can=config.devices.can)
+        simulator = build_simulator(
+            config, policy, can=config.devices.can if uses_pc104(config) else None
+        )
         io.simulator = simulator
         io.services.extend(simulator.services)
         io._closers.append(simulator.close)
-        assert simulator.board_twins is not None
-        resolve = simulator.board_twins.port_path
-    _build_pc104(config, io, policy)
+        resolve = simulator.port_path
+    if uses_pc104(config):
+        _build_pc104(config, io, policy)
     _build_scanners(config, io, policy)
     _build_boards(config, io, policy, resolve)
+    _build_gnss(config, io, policy, resolve)
     return io
+
+
+def uses_pc104(config: VehicleConfig) -> bool:
+    """Whether this vehicle has a PC104 to talk to: a ``pedals`` vehicle (the Husky) has
+    none, and a client waiting for a controller that is not there would be a critical
+    link that never comes up."""
+    return config.speed_path == "pc104"
 
 
 class Pc104SafeStop:
@@ -262,6 +277,34 @@ def _build_boards(
     io.safe_stop_targets.append(BoardsSafeStop(boards))
 
 
+def _build_gnss(
+    config: VehicleConfig,
+    io: VehicleIO,
+    policy: RestartPolicy,
+    resolve: Callable[[str], str] | None,
+) -> None:
+    """The GNSS/INS receiver, when the vehicle has one. Not critical: a lost fix is the
+    route source's to refuse (the core then faults and stops); a vehicle that only logs
+    its track must not stop for it. A crash is still restarted with the shared policy."""
+    endpoint = config.devices.gnss
+    if endpoint is None:
+        return
+    port = endpoint.port
+    if port.startswith(SIM_PORT_PREFIX):
+        if resolve is None:
+            raise ValueError(
+                f"devices.gnss.port is {port!r}, a simulated receiver, but simulation.enabled "
+                "is false: set the real serial device or enable the simulation"
+            )
+        port = resolve(port)
+    gnss = GnssInput(
+        endpoint, config.positioning.origin, port, max_age_s=config.positioning.max_fix_age_s
+    )
+    io.gnss = gnss
+    io.topics.register(gnss.topic.name, gnss.topic)
+    io.services.append(_service("gnss", gnss.run, policy, DRIVER_HEARTBEAT_DEADLINE_S))
+
+
 def link_summary(io: VehicleIO) -> dict[str, str]:
     """One short line per device link for the periodic ``heartbeats`` log."""
     links: dict[str, str] = {}
@@ -293,6 +336,8 @@ def link_summary(io: VehicleIO) -> dict[str, str]:
                 f"{b.frames_per_s:.0f} fps, crc={b.crc_errors} reconnects={b.reconnects} "
                 f"lease_expired={b.lease_expiries}"
             )
+    if io.gnss is not None:
+        links["gnss"] = io.gnss.link_line()
     return links
 
 

@@ -19,6 +19,7 @@ BENCHMARKS = [
     "benchmarks.bench_scanner_model",
     "benchmarks.bench_features",
     "benchmarks.bench_docking",
+    "benchmarks.bench_tracking",
 ]
 
 

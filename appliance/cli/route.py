@@ -289,3 +289,29 @@ def _draw(
     axes.grid(True, linewidth=0.3)
     axes.legend(loc="best")
     return figure
+
+
+@route.command("select")
+@click.argument("name")
+@click.option(
+    "--socket", "socket_path", metavar="PATH", default=None, help="The daemon's control socket."
+)
+@CONFIG_OPTION
+def route_select(name: str, socket_path: str | None, config_name: str | None) -> None:
+    """Ask the running daemon to follow route NAME from the next engagement (the vehicle
+    must not be under automatic control). Exit 0 selected, 1 refused (the reason is
+    printed), 2 no daemon."""
+    from appliance.cli.control import _fail, _socket_path
+    from appliance.control_client import query_sync
+    from appliance.control_protocol import ControlSocketError
+
+    path = _socket_path(socket_path, config_name)
+    try:
+        reply = query_sync(path, {"op": "route", "select": name})
+    except ControlSocketError as exc:
+        _fail(exc)
+    if not reply.get("ok"):
+        click.echo(f"dbw: the daemon answered: {reply.get('error', '?')}", err=True)
+        sys.exit(1)
+    click.echo(str(reply.get("message", "")))
+    sys.exit(0 if reply.get("accepted") else 1)

@@ -55,6 +55,8 @@ def daemon_config(
     for board in BOARDS:
         path = simulator.board_twins.port_path(f"sim://{board}")
         data["devices"][f"{board}_serial"]["port"] = path
+    if simulator.gnss_twin is not None:
+        data["devices"]["gnss"]["port"] = simulator.gnss_twin.port_path
     if can is not None:
         data["devices"]["can"]["interface"] = can.interface.value
         data["devices"]["can"]["channel"] = can.channel
@@ -109,6 +111,7 @@ async def run_simulator(
                 f"{board}_serial": simulator.board_twins.port_path(f"sim://{board}")
                 for board in BOARDS
             },
+            **({"gnss": simulator.gnss_twin.port_path} if simulator.gnss_twin is not None else {}),
             "bench": str(bench_socket) if bench_socket is not None else "none (--bench-socket)",
         }
         if ready_fd is None:  # a daemon that started us reads no endpoint table

@@ -118,10 +118,50 @@ def _autopilot(doc: dict[str, Any]) -> list[str]:
             switches = _finite(docking.get("pattern_switches"))
             line += f", {pattern}" + (f" ({switches:.0f} switches)" if switches is not None else "")
         lines.append(line)
+    lines += _route_lines(pilot, doc)
     refused, source = pilot.get("refused"), pilot.get("source")
     if isinstance(refused, str) and refused:
         name = clean_text(source) if isinstance(source, str) else "?"
         lines.append(f"autopilot ({name}): refuses: {clean_text(refused)}")
+    return lines
+
+
+def _route_lines(pilot: dict[Any, Any], doc: dict[str, Any]) -> list[str]:
+    """The route source: the route, progress, cross-track and look-ahead (Stanley's GUI),
+    and the routes near the vehicle with whether engagement would be allowed."""
+    lines = []
+    name = pilot.get("route")
+    if "route" in pilot:
+        selection = pilot.get("selection")
+        head = f"route: {clean_text(name)}" if isinstance(name, str) else "route: none selected"
+        if isinstance(selection, str) and selection != "ok":
+            head += f" ({clean_text(selection)})"
+        follow = as_dict(pilot.get("follow"))
+        progress, remaining = _finite(follow.get("progress_m")), _finite(follow.get("remaining_m"))
+        if progress is not None and remaining is not None:
+            head += f", {progress:.0f} m driven, {remaining:.0f} m to go"
+        cross, lookahead = _finite(follow.get("cross_track_m")), _finite(follow.get("lookahead_m"))
+        if cross is not None:
+            head += f", cross-track {cross * 100:+.1f} cm"
+        if lookahead is not None:
+            head += f", look-ahead {lookahead:.1f} m"
+        fix = follow.get("fix")
+        if isinstance(fix, str) and fix != "ok":
+            head += f"; fix: {clean_text(fix)}"
+        lines.append(head)
+    for nearby in _list(doc.get("routes_nearby")):
+        entry = as_dict(nearby)
+        distance, heading = (
+            _finite(entry.get("distance_m")),
+            _finite(entry.get("heading_error_deg")),
+        )
+        if distance is None or heading is None:
+            continue
+        verdict = "engage allowed" if entry.get("engage_allowed") is True else "too far or turned"
+        lines.append(
+            f"  nearby: {clean_text(entry.get('name'))} {distance:.1f} m, "
+            f"heading {heading:.0f} deg off: {verdict}"
+        )
     return lines
 
 

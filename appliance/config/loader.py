@@ -24,7 +24,7 @@ from pydantic.fields import FieldInfo
 
 from appliance.config.models import VehicleConfig
 
-BUILTIN_PROFILES = ("sim", "flatbed", "flatbed-sim", "husky")
+BUILTIN_PROFILES = ("sim", "flatbed", "flatbed-sim", "husky", "husky-sim")
 
 
 @dataclass(frozen=True)

@@ -15,6 +15,7 @@ from typing import Annotated, Literal, Self
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
+from drivers.gnss.client import BAUDRATES_BPS as GNSS_BAUDRATES_BPS
 from drivers.pc104.endpoint import SLCAN_BITRATES_BPS, CanInterface
 from drivers.ptylink import SIM_PORT_PREFIX
 
@@ -161,6 +162,29 @@ class SerialEndpoint(_Model):
     baudrate_bps: Annotated[int, Field(ge=1200, le=4_000_000)] = 115_200
 
 
+class GnssEndpoint(_Model):
+    """A GNSS/INS receiver speaking NMEA 0183 on a serial port (``sim://gnss``: the twin).
+
+    ``receiver_latency_s`` is the time from the position's measurement to its last
+    sentence arriving (the receiver's manual, or a measurement): each fix is stamped
+    that much before it was received, and the vehicle has moved speed x latency since."""
+
+    port: str = Field(min_length=1)
+    baudrate_bps: int = 115_200
+    receiver_latency_s: float = Field(ge=0.0, le=1.0)
+
+    @model_validator(mode="after")
+    def _standard_baud(self) -> Self:
+        # Receivers offer the standard rates only; a typo here would open the port at a
+        # rate nothing speaks and show up later as "no sentences", far from its cause.
+        if self.baudrate_bps not in GNSS_BAUDRATES_BPS:
+            raise ValueError(
+                f"baudrate_bps {self.baudrate_bps} is not a standard NMEA rate: "
+                f"one of {', '.join(str(b) for b in GNSS_BAUDRATES_BPS)}"
+            )
+        return self
+
+
 class Devices(_Model):
     lms111_left: Lms111Endpoint = Lms111Endpoint(port=2111)
     lms111_right: Lms111Endpoint = Lms111Endpoint(port=2112)
@@ -169,6 +193,7 @@ class Devices(_Model):
     throttle_serial: SerialEndpoint = SerialEndpoint(port="sim://throttle")
     brake_serial: SerialEndpoint = SerialEndpoint(port="sim://brake")
     panel_serial: SerialEndpoint = SerialEndpoint(port="sim://panel")
+    gnss: GnssEndpoint | None = None  # a vehicle that follows routes has one
 
     @model_validator(mode="after")
     def _scanners_apart(self) -> Self:
@@ -300,6 +325,41 @@ class Docking(_Model):
     cylinder_ahead_m: float = Field(0.5, ge=-20.0, le=20.0)
 
 
+class GeodeticOrigin(_Model):
+    """The origin of the vehicle's local east-north frame (WGS84): near the routes."""
+
+    lat_deg: float = Field(ge=-89.0, le=89.0)
+    lon_deg: float = Field(ge=-180.0, le=180.0)
+    alt_m: float = Field(0.0, ge=-500.0, le=9000.0)
+
+
+class Positioning(_Model):
+    """What a GNSS/INS fix must show before automatic steering may use it, and where the
+    antenna sits (from the vehicle's geometric centre: forward and to the left)."""
+
+    origin: GeodeticOrigin | None = None
+    max_fix_age_s: float = Field(0.5, gt=0.0, le=5.0)
+    max_sigma_m: float = Field(0.15, gt=0.0, le=10.0)
+    accepted_fix_qualities: tuple[Literal["gps", "dgps", "pps", "rtk_fixed", "rtk_float"], ...] = (
+        "rtk_fixed",
+        "rtk_float",
+    )
+    min_satellites: Annotated[int, Field(ge=0, le=64)] = 6
+    antenna_forward_m: float = Field(0.0, ge=-20.0, le=20.0)
+    antenna_left_m: float = Field(0.0, ge=-5.0, le=5.0)
+
+
+class RouteFollowing(_Model):
+    """The route autopilot (Stanley et al.): where routes are kept, which one is selected
+    at start-up, and where engagement is allowed."""
+
+    routes_dir: str | None = None  # None: <paths.state_dir>/routes
+    selected: str | None = None  # a route name; `dbw route select` changes it at run time
+    max_engage_distance_m: float = Field(10.0, gt=0.0, le=100.0)
+    max_engage_heading_deg: float = Field(30.0, gt=0.0, le=90.0)
+    lateral_accel_mps2: float = Field(1.0, gt=0.0, le=5.0)
+
+
 class Supervision(_Model):
     """Restart policy shared by every supervised service unless the service overrides it."""
 
@@ -375,6 +435,12 @@ class VehicleConfig(_Model):
     safety: SafetyTimeouts = SafetyTimeouts()
     engagement: Engagement = Engagement()
     docking: Docking = Docking()
+    positioning: Positioning = Positioning()
+    route: RouteFollowing = RouteFollowing()
+    # How speed is commanded: "pc104" sends a speed set-point to the vehicle's own PC104
+    # (the flat-bed); "pedals" closes the speed loop here on the throttle and brake
+    # actuators (the Husky, whose engine throttle was its autopilot's speed control).
+    speed_path: Literal["pc104", "pedals"] = "pc104"
     supervision: Supervision = Supervision()
     paths: Paths = Paths()
     simulation: Simulation = Simulation(enabled=False)
@@ -395,6 +461,13 @@ class VehicleConfig(_Model):
                         "but simulation.enabled is false: set the real serial device "
                         "(e.g. /dev/ttyUSB0) or enable the simulation"
                     )
+            gnss = self.devices.gnss
+            if gnss is not None and gnss.port.startswith(SIM_PORT_PREFIX):
+                raise ValueError(
+                    f"devices.gnss.port is {gnss.port!r}, the simulated receiver, but "
+                    "simulation.enabled is false: set the receiver's serial device "
+                    "(e.g. /dev/serial/by-id/...) or enable the simulation"
+                )
         if self.engagement.max_set_speed_mps > self.limits.max_speed_mps:
             raise ValueError(
                 "engagement.max_set_speed_mps must not exceed limits.max_speed_mps "
@@ -413,6 +486,24 @@ class VehicleConfig(_Model):
                     f"{needed:.1f} m/s^2, more than safety.full_brake_decel_mps2="
                     f"{self.safety.full_brake_decel_mps2}"
                 )
+        if engagement.autopilot_source == "route":
+            if self.devices.gnss is None:
+                raise ValueError(
+                    'engagement.autopilot_source = "route" needs a position receiver: '
+                    "set [devices.gnss] (port, receiver_latency_s)"
+                )
+            if self.positioning.origin is None:
+                raise ValueError(
+                    'engagement.autopilot_source = "route" needs the local frame\'s origin: '
+                    "set [positioning.origin] (lat_deg, lon_deg) near the routes"
+                )
+        # Compared with the default, not "was it set": a config written back out (the sim
+        # child's copy) carries the default CAN section and must load again.
+        if self.speed_path == "pedals" and self.devices.can != CanEndpoint():
+            raise ValueError(
+                'speed_path = "pedals" drives the throttle and brake actuators and uses no '
+                "PC104: remove [devices.can] (a vehicle without a PC104 has no CAN link)"
+            )
         control_period_s = 1.0 / self.rates.control_hz
         if self.supervision.control_heartbeat_deadline_s < 2 * control_period_s:
             raise ValueError(

@@ -17,6 +17,7 @@ from appliance.config.calibration import Calibration
 from appliance.config.models import Engagement, Limits, SafetyTimeouts, Staleness, VehicleConfig
 from appliance.guidance.dock_source import DockSourceParams, DockZone
 from appliance.guidance.docking import DockingParams
+from appliance.guidance.pedal_speed import PedalSpeedParams
 from appliance.localization.launcher_localizer import LocalizerParams, ScannerSetup
 from appliance.localization.launcher_map import LauncherMap
 from appliance.perception.features import FeatureParams
@@ -26,7 +27,7 @@ from drivers.pc104.client_core import ClientParams
 from safety.consistency import ErrorBudget, SteeringTrackingParams
 from safety.limits import LimitParams
 from safety.override import OperatorOverride, PedalOverrideParams, SteeringOverrideParams
-from safety.safe_state import SafeBrakeParams, SpeedRampParams
+from safety.safe_state import STOP_DISTANCE_MARGIN, SafeBrakeParams, SpeedRampParams
 from safety.staleness import DEFAULT_CRITICAL_INPUTS, StalenessGuard
 
 # What is left of a calibrated scanner's systematic error: the fit's own σ is about a
@@ -122,6 +123,35 @@ def staleness_guard(
     staleness: Staleness, critical: Iterable[str] = DEFAULT_CRITICAL_INPUTS
 ) -> StalenessGuard:
     return StalenessGuard(age_limits(staleness), critical)
+
+
+def critical_inputs(config: VehicleConfig) -> tuple[str, ...]:
+    """The inputs whose staleness revokes control. A vehicle on the ``pedals`` speed path
+    has no PC104: its status is no input, so its absence can be neither stale nor a
+    reason to hold the self-check."""
+    if config.speed_path == "pedals":
+        return tuple(name for name in DEFAULT_CRITICAL_INPUTS if name != "pc104.status")
+    return DEFAULT_CRITICAL_INPUTS
+
+
+def pedal_speed_params(config: VehicleConfig) -> PedalSpeedParams:
+    """The throttle/brake speed controller inside the vehicle's throttle and brake limits,
+    so the safety limiter, which enforces the same numbers, never has to clamp it (a
+    clamp the controller does not know of would be windup it cannot see).
+
+    Under hold-to-move a released button is the controller's stop request: its stop brake
+    is raised to the deceleration that stops from the top set speed within
+    ``hold_to_move_stop_distance_m`` (aiming at 70 % of it, as the PC104 path's ramp does,
+    for the brake's rise), by the controller's own brake gain."""
+    params = PedalSpeedParams.from_limits(config.limits)
+    engagement = config.engagement
+    if not engagement.hold_to_move:
+        return params
+    needed_mps2 = engagement.max_set_speed_mps**2 / (
+        2.0 * engagement.hold_to_move_stop_distance_m * STOP_DISTANCE_MARGIN
+    )
+    stop_pct = min(needed_mps2 / params.decel_per_brake_pct_mps2, params.brake_max_pct)
+    return replace(params, stop_brake_pct=max(params.stop_brake_pct, stop_pct))
 
 
 def pc104_client_params(config: VehicleConfig) -> ClientParams:

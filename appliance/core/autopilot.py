@@ -10,66 +10,16 @@ operator did not engage. Plugging in a new source is one line in ``AUTOPILOT_SOU
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field
-from typing import Protocol
+from collections.abc import Callable
+from dataclasses import dataclass
 
 from appliance.config import parts
 from appliance.config.calibration import Calibration
 from appliance.config.models import VehicleConfig, VehicleKind
+from appliance.core.route_autopilot import RouteAutopilot
+from appliance.core.wish import AutopilotSource, AutopilotWish, Observation
 from appliance.guidance.dock_source import DockSource
-from drivers.geometry import Pose2D
-from drivers.lms111.mounted import MountedScan
 from drivers.pc104.messages import MotionPattern, PoseState
-
-
-@dataclass(frozen=True)
-class Observation:
-    """What a source may look at this cycle (all optional: inputs can be missing)."""
-
-    now_s: float
-    speed_mps: float | None
-    steer_tyre_rad: float | None
-    scans: Mapping[str, MountedScan | None] = field(default_factory=dict)
-    # Whether the operator has engaged (a source that plans, like docking, starts its plan
-    # afresh at each engagement and does not advance it while the operator drives).
-    engaged: bool = False
-
-
-@dataclass(frozen=True)
-class AutopilotWish:
-    """A source's wish for this cycle.
-
-    ``ready=False`` refuses engagement with ``reason`` (and disengages if it happens while
-    engaged: a source that lost its route cannot steer). ``max_speed_mps`` caps the
-    operator's set speed (a route's speed limit); None leaves it alone. ``reverse`` asks
-    for the set speed backwards, ``rear_steer_rad`` is the rear row's angle in the
-    REAR_STEER pattern (physical, left positive); the limits apply to both. ``status`` is
-    what the source has to say in `dbw status` (plain data: a pose, a phase, a gap).
-    ``pose`` (with ``pose_state``) and ``expected_pose`` are the source's estimate of the
-    geometric centre and where its plan takes it, in the site frame; the PC104 link
-    carries them for a PC104 that closes the steering loop itself.
-    """
-
-    ready: bool
-    reason: str = ""
-    steer_tyre_rad: float = 0.0
-    max_speed_mps: float | None = None
-    pattern: MotionPattern | None = None  # None: the vehicle's default pattern
-    rear_steer_rad: float = 0.0
-    reverse: bool = False
-    status: Mapping[str, object] = field(default_factory=dict)
-    pose: Pose2D | None = None
-    pose_state: PoseState = PoseState.LOST
-    expected_pose: Pose2D | None = None
-
-
-class AutopilotSource(Protocol):
-    name: str
-
-    def reset(self) -> None: ...
-
-    def update(self, observation: Observation) -> AutopilotWish: ...
 
 
 class HoldStraight:
@@ -144,12 +94,17 @@ def _dock_source(config: VehicleConfig, calibration: Calibration | None) -> Auto
     return DockAutopilot(source)
 
 
+def _route_source(config: VehicleConfig, _calibration: Calibration | None) -> AutopilotSource:
+    return RouteAutopilot(config)
+
+
 SourceFactory = Callable[[VehicleConfig, "Calibration | None"], AutopilotSource]
 
 AUTOPILOT_SOURCES: dict[str, SourceFactory] = {
     "hold_straight": lambda _config, _calibration: HoldStraight(),
     "weave": lambda _config, _calibration: Weave(),
     "dock": _dock_source,
+    "route": _route_source,
 }
 
 
@@ -170,3 +125,18 @@ def default_pattern(kind: VehicleKind) -> MotionPattern:
         case VehicleKind.FLATBED | VehicleKind.FRONT_STEER:
             return MotionPattern.FRONT_STEER
     raise ValueError(f"no default pattern for {kind}")
+
+
+__all__ = [
+    "AUTOPILOT_SOURCES",
+    "AutopilotSource",
+    "AutopilotWish",
+    "DockAutopilot",
+    "HoldStraight",
+    "Observation",
+    "RouteAutopilot",
+    "Weave",
+    "WeaveParams",
+    "default_pattern",
+    "make_source",
+]

@@ -6,6 +6,18 @@ command limiter, the set speed through the speed ramp (a controlled stop under
 hold-to-move), the safe-state brake, the panel's lamps and text, and the PC104's motion
 command. Holding the limiter and the ramps here, behind ``reset()``/``update()``, keeps the
 rate limits' memory in one place that a restart clears.
+
+Speed goes one of two ways (``speed_path``). ``pc104``: the ramped set speed is the
+PC104's set-point and our throttle board stays released. ``pedals`` (a vehicle without a
+PC104, Stanley et al.'s Husky): in SPEED_HOLD the ramped set speed is the target of the
+throttle/brake controller (:mod:`appliance.guidance.pedal_speed`), whose pedal positions
+pass arbitration and the throttle/brake limits before they reach the boards; in ENGAGED
+the speed is the operator's foot and both our pedals are released; in a safe mode the
+throttle is released and the safe-state brake applies, never less than the brake we were
+already pulling. The pedals have a limiter of their own, so a broken steering wish (a
+non-finite angle resets the steering limiter) cannot also throw the brake on, and the
+controller is reset whenever the pedals are not ours: it never integrates or plans over
+cycles it did not command.
 """
 
 from __future__ import annotations
@@ -19,6 +31,7 @@ from appliance.config.models import VehicleConfig
 from appliance.core.autopilot import AutopilotWish
 from appliance.core.observe import Measurements
 from appliance.core.output import SAFE_MODES, CoreOutput, Note, hl_state, printable
+from appliance.guidance.pedal_speed import PedalCommand, PedalSpeedController
 from appliance.modes import AUTOMATIC_MODES, Mode, ModeState
 from drivers.actuators.messages import (
     BrakeCommand,
@@ -38,7 +51,7 @@ from drivers.pc104.messages import (
     PoseState,
     SteeringLoop,
 )
-from safety.arbitration import OperatorInput, arbitrate
+from safety.arbitration import RELEASED, OperatorInput, arbitrate
 from safety.limits import ActuatorCommand, CommandLimiter
 from safety.safe_state import SafeBrake, SafeKind, SpeedRamp
 
@@ -64,23 +77,44 @@ class CommandPaths:
         self.limiter = CommandLimiter(parts.limit_params(config.limits))
         self.brake = SafeBrake(parts.safe_brake_params(config.safety, config.limits))
         self.speed = SpeedRamp(parts.speed_ramp_params(config.engagement, config.limits))
+        self.pedals: PedalSpeedController | None = (
+            PedalSpeedController(parts.pedal_speed_params(config))
+            if config.speed_path == "pedals"
+            else None
+        )
+        self.pedal_limiter = CommandLimiter(parts.limit_params(config.limits))
         self.reset()
 
     def reset(self) -> None:
         self.limiter.reset()
         self.brake.reset()
         self.speed.reset()
+        self.pedal_limiter.reset()
+        if self.pedals is not None:
+            self.pedals.reset()
         # The steering command last sent (None: released); the override and tracking rules
         # compare the measured angle with it.
         self.last_steer_rad: float | None = None
+        # The brake our speed controller last applied: a safe state never brakes less.
+        self.brake_floor_pct = 0.0
+        # The speed controller's last output (None: the pedals were not ours), for status.
+        self.last_pedal: PedalCommand | None = None
 
     def engaged(self) -> None:
-        """Automatic control begins: no rate limit remembers a command from before."""
+        """Automatic control begins: no rate limit or controller remembers a command from
+        before."""
         self.limiter.reset()
+        self.pedal_limiter.reset()
+        if self.pedals is not None:
+            self.pedals.reset()
 
     def speed_hold_entered(self) -> None:
-        """Speed hold begins: the ramp starts from the set-point it has reached."""
+        """Speed hold begins: the ramp starts from the set-point it has reached (on the
+        pedals path, the measured speed the set speed was locked at), the controller
+        from released pedals."""
         self.speed.reset(self.speed.setpoint_mps)
+        if self.pedals is not None:
+            self.pedals.reset()
 
     def update(
         self,
@@ -109,23 +143,27 @@ class CommandPaths:
         self.last_steer_rad = steer_rad
 
         speed_setpoint: float | None = None
-        if automatic:
+        stopping = self.hold_to_move and not state.hold_to_move_held
+        # On the pedals path ENGAGED's speed is the operator's foot: nothing is set, and
+        # the ramp follows the measured speed, which a + press then locks.
+        operators_speed = self.pedals is not None and mode is Mode.ENGAGED
+        if automatic and not operators_speed:
             target = self._speed_target(state, operator, m, wish)
-            stopping = self.hold_to_move and not state.hold_to_move_held
             speed_setpoint = self.speed.update(target, now_s, controlled_stop=stopping)
         else:
             self.speed.reset(m.speed_mps if m.speed_mps is not None else 0.0)
 
         kind = SafeKind.ESTOP if mode is Mode.ESTOP else SafeKind.FAULT if safe else SafeKind.NONE
-        brake_pct = self.brake.update(kind, now_s)
+        safe_brake_pct = self.brake.update(kind, now_s)
+        throttle, brake = self._pedal_commands(
+            state, operator, m, wish, speed_setpoint, stopping, safe_brake_pct, now_s
+        )
         return CoreOutput(
             now_s=now_s,
             mode=mode,
             steering=self._steering_command(steer_rad, m),
-            throttle=ThrottleCommand(enable=False),
-            brake=BrakeCommand(enable=True, position_pct=brake_pct)
-            if safe
-            else BrakeCommand(enable=False),
+            throttle=throttle,
+            brake=brake,
             panel=panel_command(state),
             pc104=self._pc104_command(steer_rad, speed_setpoint, wish),
             hl_state=hl_state(mode),
@@ -137,6 +175,65 @@ class CommandPaths:
             pc104_expected_pose=_expected_frame(wish.expected_pose, self.steering_loop)
             if automatic
             else None,
+        )
+
+    def _pedal_commands(
+        self,
+        state: ModeState,
+        operator: OperatorInput,
+        m: Measurements,
+        wish: AutopilotWish,
+        speed_setpoint: float | None,
+        stopping: bool,
+        safe_brake_pct: float,
+        now_s: float,
+    ) -> tuple[ThrottleCommand, BrakeCommand]:
+        """The throttle and brake boards' commands (see the module for each mode)."""
+        mode = state.mode
+        safe = mode in SAFE_MODES
+        controller = self.pedals
+        foot = operator.brake_pedal or operator.throttle_pedal
+        ours = (
+            controller is not None
+            and mode is Mode.SPEED_HOLD
+            and speed_setpoint is not None
+            and not foot
+        )
+        request = None
+        pedal: PedalCommand | None = None
+        if ours and controller is not None and speed_setpoint is not None:
+            # Deny by default: an unknown speed makes the controller brake (its FAULT), and
+            # a stop wish or a reverse one (this path drives forward only) stops.
+            stop = stopping or wish.reverse or wish.pattern is MotionPattern.STOP
+            measured = m.speed_mps if m.speed_mps is not None else math.nan
+            pedal = controller.update(speed_setpoint, measured, None, now_s, stop_requested=stop)
+            request = ActuatorCommand(None, pedal.throttle_pct, pedal.brake_pct)
+        elif controller is not None:
+            controller.reset()  # not ours this cycle: start afresh when it is again
+        chosen = arbitrate(operator, False, request, False, ours) or RELEASED
+        # Every cycle, so the throttle's rate limit remembers what really went out (0 when
+        # released): taking over again ramps from there.
+        limited, violations = self.pedal_limiter.update(
+            ActuatorCommand(None, chosen.throttle_pct, chosen.brake_pct),
+            m.speed_mps if m.speed_mps is not None else 0.0,
+            now_s,
+        )
+        self.last_pedal = pedal
+        if safe:
+            brake_pct = max(safe_brake_pct, self.brake_floor_pct)
+            return ThrottleCommand(enable=False), BrakeCommand(enable=True, position_pct=brake_pct)
+        if not ours:
+            self.brake_floor_pct = 0.0
+            return ThrottleCommand(enable=False), BrakeCommand(enable=False)
+        throttle_pct, brake_pct = limited.throttle_pct, limited.brake_pct
+        if "input_not_finite" in violations and controller is not None:
+            controller.reset()  # the limiter sent its safe command: brake, throttle shut
+        if brake_pct > 0.0:
+            throttle_pct = 0.0  # never both pedals: the brake wins
+        self.brake_floor_pct = brake_pct
+        return (
+            ThrottleCommand(enable=True, position_pct=throttle_pct),
+            BrakeCommand(enable=True, position_pct=brake_pct),
         )
 
     def _speed_target(

@@ -12,9 +12,11 @@ only reach READY on its own.
 
 Actuation paths (see docs/control.md): steering through the servo board (a position
 set-point in the servo's relative frame, closed through the calibrated pot) and the
-PC104's front set-point; speed through the PC104's own speed loop (pattern + speed
-set-point); the brake board applies the safe-state brake; the throttle board stays
-released (the PC104 drives), so nothing here ever opens a throttle actuator.
+PC104's front set-point; speed by ``speed_path``: ``pc104``, the PC104's own speed loop
+(pattern + speed set-point), the brake board applying the safe-state brake and the
+throttle board released (nothing opens a throttle actuator); ``pedals`` (no PC104), the
+throttle and brake boards driven by our speed controller in SPEED_HOLD, the speed measured
+by the GNSS/INS, and the PC104 no input at all (not critical, no readiness, no faults).
 """
 
 from __future__ import annotations
@@ -34,7 +36,13 @@ from appliance.core.autopilot import (
 )
 from appliance.core.commands import CommandPaths
 from appliance.core.inputs import ControlInputs
-from appliance.core.observe import Measurements, board_faults, measure, pc104_faults
+from appliance.core.observe import (
+    Measurements,
+    board_faults,
+    measure,
+    pc104_faults,
+    pedal_path_problems,
+)
 from appliance.core.output import CoreOutput, Note
 from appliance.core.panel import PanelDecoder, PanelEvents
 from appliance.core.report import core_status
@@ -115,7 +123,8 @@ class ControlCore:
             speed_step_mps=config.engagement.speed_step_mps,
             max_speed_mps=min(config.engagement.max_set_speed_mps, config.limits.max_speed_mps),
         )
-        self.staleness = parts.staleness_guard(config.staleness)
+        self.pedals = config.speed_path == "pedals"
+        self.staleness = parts.staleness_guard(config.staleness, parts.critical_inputs(config))
         self.override = parts.operator_override(config.safety, config.limits)
         self.tracking = SteeringTrackingMonitor(parts.steering_tracking_params(config.safety))
         self.link_budget = parts.error_budget(config.safety)
@@ -167,7 +176,14 @@ class ControlCore:
             for name in self.staleness.age_limits_s
             if not self.staleness.is_stale(name, inputs.ages_s)
         )
-        m = measure(inputs, fresh, self.calibration)
+        m = measure(
+            inputs,
+            fresh,
+            self.calibration,
+            speed_path=self.config.speed_path,
+            now_s=now_s,
+            gnss_max_age_s=self.config.positioning.max_fix_age_s,
+        )
         self._measured = m
         operator = self.override.update(
             commanded_steer_rad=self.commands.last_steer_rad,
@@ -259,6 +275,19 @@ class ControlCore:
             return True, f"set speed {self.state.set_speed_mps or 0.0:.2f} m/s"
         return True, f"{before.mode} -> {self.state.mode}"
 
+    def select_route(self, name: str) -> tuple[bool, str]:
+        """`dbw route select`: the route the `route` source follows. Refused while under
+        automatic control (a route is changed standing, between engagements), and by
+        any other source."""
+        select = getattr(self.autopilot, "select", None)
+        if select is None:
+            return False, f"the autopilot source is {self.autopilot.name!r}, not 'route'"
+        if self.state.mode in AUTOMATIC_MODES:
+            return False, f"cannot change the route in {self.state.mode}: disengage first"
+        accepted, message = select(name)
+        self._note("route_selected" if accepted else "route_refused", route=name, message=message)
+        return bool(accepted), str(message)
+
     def engage_blockers(self) -> tuple[str, ...]:
         """Why an engage press would be refused now (empty: it would be accepted), judged
         on the last cycle's conditions. READY means the vehicle is safe to hand over, not
@@ -271,6 +300,24 @@ class ControlCore:
         return refusal_reasons(self.state, self._conditions)
 
     def status(self, now_s: float) -> dict[str, Any]:
+        document = self._core_status(now_s)
+        nearby = getattr(self.autopilot, "nearby", None)
+        if nearby is not None:  # the route source: routes near the vehicle, engageable?
+            document["routes_nearby"] = nearby()
+        pedal = self.commands.last_pedal
+        if self.pedals:  # what the throttle/brake speed controller is doing, and why
+            document["pedal_speed"] = (
+                None
+                if pedal is None
+                else {
+                    "state": str(pedal.state),
+                    "reason": pedal.reason,
+                    "reference_speed_mps": round(pedal.reference_speed_mps, 3),
+                }
+            )
+        return document
+
+    def _core_status(self, now_s: float) -> dict[str, Any]:
         return core_status(
             state=self.state,
             mode_since_s=self.mode_since_s,
@@ -317,7 +364,15 @@ class ControlCore:
 
     def _wish(self, m: Measurements, inputs: ControlInputs, now_s: float) -> AutopilotWish:
         engaged = self.state.mode in AUTOMATIC_MODES
-        observation = Observation(now_s, m.speed_mps, m.steer_tyre_rad, inputs.scans, engaged)
+        observation = Observation(
+            now_s,
+            m.speed_mps,
+            m.steer_tyre_rad,
+            inputs.scans,
+            engaged,
+            gnss=inputs.gnss,
+            gnss_seq=inputs.gnss_seq,
+        )
         try:
             return self.autopilot.update(observation)
         except Exception as exc:  # a broken source must not take the safety layer with it
@@ -330,8 +385,10 @@ class ControlCore:
         operator: OperatorInput,
         wish: AutopilotWish,
     ) -> EngageConditions:
-        blockers = []
-        if m.pc104_source is not None and m.pc104_source is not ControlSource.AUTOMATIC:
+        blockers: list[str] = []
+        if self.pedals:
+            blockers.extend(self._pedal_problems(m, wish).values())
+        elif m.pc104_source is not None and m.pc104_source is not ControlSource.AUTOMATIC:
             blockers.append(f"PC104 under {m.pc104_source} control")
         elif not m.pc104_ready:
             blockers.append("PC104 not ready")
@@ -404,14 +461,19 @@ class ControlCore:
             active[f"service:{name}"] = f"critical service {name} {why}"
         steering_engaged = mode in AUTOMATIC_MODES
         active.update(board_faults(inputs, steering_engaged))
-        active.update(pc104_faults(inputs, fresh, actuating=steering_engaged))
-        deltas = self.link_deltas.update(
-            {"errors": inputs.pc104_link.errors, "good": inputs.pc104_link.good}
-        )
-        if self.link_budget.update(deltas["errors"], deltas["good"]):
-            active["pc104_link_errors"] = (
-                f"PC104 link: CRC/counter errors exhausted the budget of {self.link_budget.limit}"
+        if self.pedals:  # no PC104; the speed loop is ours and needs a speed
+            if steering_engaged:
+                active.update(self._pedal_problems(m, wish))
+        else:
+            active.update(pc104_faults(inputs, fresh, actuating=steering_engaged))
+            deltas = self.link_deltas.update(
+                {"errors": inputs.pc104_link.errors, "good": inputs.pc104_link.good}
             )
+            if self.link_budget.update(deltas["errors"], deltas["good"]):
+                active["pc104_link_errors"] = (
+                    "PC104 link: CRC/counter errors exhausted the budget of "
+                    f"{self.link_budget.limit}"
+                )
         steering_fresh = {"board.steering", "steering.pot"} <= fresh
         if self.calibration is not None and steering_fresh and self.override.steering_unknown:
             # Fresh telemetry, but the angle cannot be known (pot outside its calibrated
@@ -426,6 +488,9 @@ class ControlCore:
         if steering_engaged and not wish.ready:
             active["autopilot_not_ready"] = f"autopilot source: {wish.reason or 'not ready'}"
         return active
+
+    def _pedal_problems(self, m: Measurements, wish: AutopilotWish) -> dict[str, str]:
+        return pedal_path_problems(m, wish.reverse, self.config.positioning.max_fix_age_s)
 
     def _operator_events(self, operator: OperatorInput, m: Measurements, now_s: float) -> None:
         if operator.steering_override:

@@ -11,6 +11,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 
+from appliance.localization.gnss_pose import GnssNoFix, GnssPose
 from drivers.actuators.messages import (
     BrakeTelemetry,
     PanelTelemetry,
@@ -42,3 +43,7 @@ class ControlInputs:
     scans: Mapping[str, MountedScan | None] = field(default_factory=dict)
     # Critical services the supervisor reports as not running (name -> state and reason).
     service_faults: Mapping[str, str] = field(default_factory=dict)
+    # The GNSS/INS receiver's latest epoch and its sequence number: a source that needs
+    # every epoch (the route's transform) takes each new one once.
+    gnss: GnssPose | GnssNoFix | None = None
+    gnss_seq: int | None = None

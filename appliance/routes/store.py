@@ -11,6 +11,7 @@ selected under the wrong name.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from importlib import resources
 from pathlib import Path
 
 from appliance.config.models import VehicleConfig
@@ -18,10 +19,22 @@ from appliance.routes.geojson import RouteFileError, read_route_file, write_rout
 from appliance.routes.route import Directions, Route, name_problem
 
 ROUTE_SUFFIX = ".geojson"
+# The example routes shipped with the package (the simulated Husky's off-road mile): a
+# simulated vehicle can drive one without anything installed; they cannot be written.
+BUILTIN_ROUTES = "builtin:routes"
+
+
+def builtin_routes_dir() -> Path:
+    return Path(str(resources.files("appliance.config").joinpath("routes")))
 
 
 def routes_dir(config: VehicleConfig) -> Path:
-    """Where ``config``'s vehicle keeps its routes."""
+    """Where ``config``'s vehicle keeps its routes (``route.routes_dir``, by default
+    ``<paths.state_dir>/routes``; ``builtin:routes``: the shipped examples)."""
+    if config.route.routes_dir == BUILTIN_ROUTES:
+        return builtin_routes_dir()
+    if config.route.routes_dir:
+        return Path(config.route.routes_dir)
     return Path(config.paths.state_dir) / "routes"
 
 
@@ -72,6 +85,11 @@ class RouteStore:
     def save(self, route: Route, *, overwrite: bool = False) -> Path:
         """Write ``route`` as ``NAME.geojson``, atomically; an existing route is replaced
         only with ``overwrite``."""
+        if self.directory == builtin_routes_dir():
+            raise RouteFileError(
+                f"{self.directory} holds the built-in example routes, which are not written: "
+                "set route.routes_dir to a directory of your own (or give --dir)"
+            )
         path = self.path_for(route.name)
         if path.exists() and not overwrite:
             raise RouteFileError(f"{path}: route {route.name!r} exists already")

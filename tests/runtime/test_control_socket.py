@@ -81,6 +81,12 @@ class FakeApi:
             return False, f"{name} refused: not READY"
         return True, f"{name} done"
 
+    def select_route(self, name: str) -> tuple[bool, str]:
+        self.requests.append(f"route:{name}")
+        if name == "missing":
+            return False, "route 'missing' not selected: no such route"
+        return True, f"route {name!r} selected"
+
 
 @dataclass
 class FakeContext:
@@ -186,6 +192,24 @@ async def test_status_and_commands_round_trip_and_every_command_is_logged(
             ("estop", "accepted"),
         ]
         assert all(c["peer_uid"] == os.getuid() and c["peer_pid"] == os.getpid() for c in commands)
+
+
+async def test_a_route_is_selected_through_the_socket_and_logged(short_tmp: Path) -> None:
+    path = short_tmp / "control.sock"
+    async with serving(path) as served:
+        with capture_logs() as logs:
+            assert await query(path, {"op": "route", "select": "north-loop"}) == {
+                "ok": True,
+                "accepted": True,
+                "message": "route 'north-loop' selected",
+            }
+            refused = await query(path, {"op": "route", "select": "missing"})
+            assert refused["accepted"] is False and "no such route" in refused["message"]
+            bad = await query(path, {"op": "route", "select": ""})
+            assert bad["ok"] is False and "route name" in bad["error"]
+        assert served.api.requests == ["route:north-loop", "route:missing"]
+        verdicts = [(e["route"], e["verdict"]) for e in logs if e["event"] == "route_select"]
+        assert verdicts == [("north-loop", "accepted"), ("missing", "refused")]
 
 
 async def test_requests_sent_together_get_one_reply_each_in_order(short_tmp: Path) -> None:

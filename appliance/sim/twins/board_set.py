@@ -69,7 +69,9 @@ class ActuatorTwins:
     def from_config(
         cls, config: VehicleConfig, world: SimWorld | None, directory: str | None = None
     ) -> ActuatorTwins:
-        return cls(world, directory, command_timeout_s=config.safety.lower_layer_command_timeout_s)
+        twins = cls(world, directory, command_timeout_s=config.safety.lower_layer_command_timeout_s)
+        twins.throttle.pedal_drives_engine = config.speed_path == "pedals"
+        return twins
 
     def port_path(self, port: str) -> str:
         """``sim://NAME`` -> the tty path (a stable symlink) the client should open."""

@@ -240,9 +240,16 @@ class ThrottleTwin(_PedalTwin):
     world_source = "throttle_board"
     world_field = "throttle_pct"
 
+    # On a vehicle without a PC104 (the Husky) the pedal and the actuator pull the same
+    # engine linkage, so the engine feels the larger of the two; with a PC104 the pedal is
+    # an input the drive controller reads (the core forwards it), not a linkage.
+    pedal_drives_engine = False
+
     def operator_pedal(self, pct: float) -> None:
         """The operator's foot on the throttle pedal (0: foot off)."""
         self.operator_pedal_pct = _clip_pct(pct)
+        if self.world is not None and self.pedal_drives_engine:
+            self.world.set_inputs("operator", throttle_pct=self.operator_pedal_pct)
 
     def telemetry(self, status: BoardStatus, fault: FaultCode, echo: int) -> ThrottleTelemetry:
         actuator, pedal = self._pedal_fields()

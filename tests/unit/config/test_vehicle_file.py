@@ -34,9 +34,12 @@ def test_seed_vehicles_talk_to_real_hardware() -> None:
     assert husky.geometry.counter_steer_ratio_k == pytest.approx(0.63)
     assert husky.limits.max_speed_mps == pytest.approx(4.47)  # 10 mph
     assert flatbed.kind is VehicleKind.FLATBED
+    assert flatbed.devices.can.interface is CanInterface.SOCKETCAN
+    # The Husky has no PC104 to talk to: speed by its own throttle and brake, position by GNSS.
+    assert husky.speed_path == "pedals"
+    assert husky.devices.gnss is not None and husky.devices.gnss.port.startswith("/dev/")
     for config in (husky, flatbed):
         assert not config.simulation.enabled
-        assert config.devices.can.interface is CanInterface.SOCKETCAN
         assert config.devices.steering_serial.port.startswith("/dev/")
 
 

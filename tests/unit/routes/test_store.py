@@ -7,11 +7,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from appliance.config import load_config
+from appliance.config import VehicleConfig, load_config
 from appliance.localization.local_frame import LocalFrame
 from appliance.routes.geojson import RouteFileError, dumps_route
 from appliance.routes.route import Directions, LocalLine, Route
-from appliance.routes.store import RouteStore, routes_dir
+from appliance.routes.store import BUILTIN_ROUTES, RouteStore, routes_dir
 
 FRAME = LocalFrame(52.2, 9.3)
 
@@ -98,3 +98,16 @@ def test_an_unwritable_directory_is_a_route_file_error(tmp_path: Path) -> None:
     (tmp_path / "routes").write_text("a file, not a directory", encoding="utf-8")
     with pytest.raises(RouteFileError, match="cannot write"):
         RouteStore(tmp_path / "routes").save(_route("r"))
+
+
+def test_the_builtin_routes_are_listed_and_loaded_but_never_written() -> None:
+    data = load_config("husky").model_dump(exclude_unset=True)
+    data["route"] = {"routes_dir": BUILTIN_ROUTES}
+    config = VehicleConfig.model_validate(data)
+    store = RouteStore(routes_dir(config))
+    names = [entry.name for entry in store.list() if entry.error is None]
+    assert "offroad-mile" in names
+    route = store.load("offroad-mile")
+    assert 1600.0 < route.length_m < 1620.0  # the simulator's off-road mile, every 2 m
+    with pytest.raises(RouteFileError, match="built-in example routes"):
+        store.save(route, overwrite=True)
