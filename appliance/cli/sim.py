@@ -98,6 +98,7 @@ async def run_simulator(
                     simulator.board_twins,
                     simulator.pc104_twin,
                     simulator.scanner_twins,
+                    gnss=simulator.gnss_twin,
                 ),
             )
         left, right = config.devices.lms111_left, config.devices.lms111_right

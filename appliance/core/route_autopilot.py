@@ -25,7 +25,7 @@ from appliance.core.wish import AutopilotWish, Observation
 from appliance.guidance.pure_pursuit import PursuitParams
 from appliance.guidance.route_follow import RouteFollower, RouteFollowParams
 from appliance.guidance.speed_profile import SpeedProfileParams
-from appliance.localization.gnss_quality import FixVerdictParams
+from appliance.localization.gnss_quality import FixVerdictParams, fix_verdict
 from appliance.localization.local_frame import LocalFrame
 from appliance.routes import (
     Route,
@@ -131,7 +131,10 @@ class RouteAutopilot:
             self._gnss_seq = observation.gnss_seq
             follower.update_fix(observation.gnss, observation.now_s)
         if speed is None or not math.isfinite(speed):
-            return AutopilotWish(ready=False, reason="speed unknown", status=self._status())
+            # The speed comes from the same receiver: a lost fix is the cause to state.
+            verdict = fix_verdict(follower.last_fix, observation.now_s, follower.params.fix)
+            reason = "speed unknown" if verdict.ok else verdict.reason
+            return AutopilotWish(ready=False, reason=reason, status=self._status())
         wish = follower.update(
             observation.now_s, speed, self.max_speed_mps, observation.engaged, steer
         )

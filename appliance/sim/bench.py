@@ -25,6 +25,7 @@ from typing import Annotated, Any, Literal
 from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError
 
 from appliance.sim.twins.board_set import ActuatorTwins
+from appliance.sim.twins.gnss import GnssTwin
 from appliance.sim.twins.lms111 import Lms111Twin
 from appliance.sim.twins.pc104 import Pc104Twin
 from appliance.sim.world import SimWorld
@@ -132,6 +133,15 @@ class Pc104Restart(_Request):
     op: Literal["pc104_restart"]
 
 
+class GnssSignal(_Request):
+    """The GNSS/INS antenna shadowed (the receiver talks on but sends no epochs) or clear,
+    or its cable pulled and plugged again (``plugged``)."""
+
+    op: Literal["gnss_signal"]
+    on: bool | None = None
+    plugged: bool | None = None
+
+
 class ScannerPower(_Request):
     """A scanner powered off (listener and connections gone) or on again."""
 
@@ -152,7 +162,8 @@ Request = Annotated[
     | Corrupt
     | Pc104Faults
     | Pc104Restart
-    | ScannerPower,
+    | ScannerPower
+    | GnssSignal,
     Field(discriminator="op"),
 ]
 _REQUEST: TypeAdapter[Request] = TypeAdapter(Request)
@@ -170,6 +181,7 @@ OPS = (
     "pc104_faults",
     "pc104_restart",
     "scanner_power",
+    "gnss_signal",
 )
 
 
@@ -222,9 +234,11 @@ class SimBench:
         pc104: Pc104Twin | None,
         scanners: Mapping[str, Lms111Twin],
         *,
+        gnss: GnssTwin | None = None,
         clock: Callable[[], float] = time.monotonic,
     ) -> None:
         self.world = world
+        self.gnss = gnss
         self.boards = boards
         self.pc104 = pc104
         self.scanners = dict(scanners)
@@ -278,6 +292,15 @@ class SimBench:
                     await twin.power_on()
                 else:
                     await twin.stop()
+            case GnssSignal(on=on, plugged=plugged):
+                if self.gnss is None:
+                    raise BenchRequestError("this simulated vehicle has no GNSS/INS receiver")
+                if on is not None:
+                    self.gnss.synth.shadowed = not on
+                if plugged is True:
+                    self.gnss.replug()
+                elif plugged is False:
+                    self.gnss.unplug()
         return {}
 
     def _pc104(self) -> Pc104Twin:
@@ -326,6 +349,14 @@ class SimBench:
             },
             "pc104": None if self.pc104 is None else self._observe_pc104(self.pc104),
             "scanners": {side: {"powered": twin.running} for side, twin in self.scanners.items()},
+            "gnss": None
+            if self.gnss is None
+            else {
+                "plugged": self.gnss.link.plugged,
+                "shadowed": self.gnss.synth.shadowed,
+                "epochs": self.gnss.synth.epochs,
+                "dropped_epochs": self.gnss.synth.dropped_epochs,
+            },
         }
 
     @staticmethod

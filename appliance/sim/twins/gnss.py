@@ -196,6 +196,9 @@ class NmeaSynth:
         self.lines = 0
         self.corrupted_lines = 0
         self.dropped_epochs = 0
+        # Set from outside (the bench: the antenna under a roof) and cleared the same way;
+        # an epoch while shadowed is a dropout like a scheduled one.
+        self.shadowed = False
 
     def update(
         self, now_s: float, east_m: float, north_m: float, yaw_rad: float, speed_mps: float
@@ -220,7 +223,7 @@ class NmeaSynth:
         offset_east_m, offset_north_m = self.jump_offset_m(t_s)
         truth = (quality, sigma_m, offset_east_m, offset_north_m)
         self.epochs += 1
-        if self.in_dropout(t_s):
+        if self.shadowed or self.in_dropout(t_s):
             self.dropped_epochs += 1
             return NmeaEpoch(t_s, utc, (), 0, 0, True, *truth)
         noise = self._rng[_NOISE].normal(0.0, 1.0, 3)

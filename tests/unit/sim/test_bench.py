@@ -168,3 +168,32 @@ def test_a_vehicle_without_a_pc104_says_so(bench: SimBench) -> None:
     assert handle(bench, {"op": "observe"})["state"]["pc104"] is None
     reply = handle(bench, {"op": "pc104_restart"})
     assert reply["ok"] is False and "no PC104" in reply["error"]
+
+
+def test_the_gnss_antenna_shadowed_and_its_cable_pulled(tmp_path: Any) -> None:
+    from appliance.sim.twins.gnss import GnssTwin
+
+    world = SimWorld(VehicleParams.from_config(load_config("sim")))
+    boards = ActuatorTwins(world)
+    receiver = GnssTwin(str(tmp_path / "gnss"))
+    try:
+        without = SimBench(world, boards, None, {})
+        reply = handle(without, {"op": "gnss_signal", "on": False})
+        assert not reply["ok"] and "no GNSS/INS receiver" in reply["error"]
+        bench = SimBench(world, boards, None, {}, gnss=receiver)
+        assert receiver.update(0.0, 1.0, 2.0, 0.0, 0.0) is not None
+        assert handle(bench, {"op": "gnss_signal", "on": False})["ok"]
+        epoch = receiver.update(0.1, 1.0, 2.0, 0.0, 0.0)
+        assert epoch is not None and epoch.dropout and epoch.writes == ()
+        gnss = handle(bench, {"op": "observe"})["state"]["gnss"]
+        assert gnss["shadowed"] and gnss["dropped_epochs"] == 1 and gnss["plugged"]
+        assert handle(bench, {"op": "gnss_signal", "on": True, "plugged": False})["ok"]
+        epoch = receiver.update(0.2, 1.0, 2.0, 0.0, 0.0)
+        assert epoch is not None and not epoch.dropout
+        assert not handle(bench, {"op": "observe"})["state"]["gnss"]["plugged"]
+        assert handle(bench, {"op": "gnss_signal", "plugged": True})["ok"]
+        assert receiver.link.plugged
+        assert not handle(bench, {"op": "gnss_signal", "on": "no"})["ok"]  # strict
+    finally:
+        receiver.close()
+        boards.close()

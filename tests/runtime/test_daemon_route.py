@@ -1,0 +1,124 @@
+"""The Husky's route autopilot through the daemon as shipped: the `husky-sim` profile, its
+simulated vehicle in its own process (GNSS/INS receiver on a pty, throttle and brake
+boards, no PC104), the built-in off-road mile selected. The operator engages, drives up
+to speed on the pedal and locks it with +; the daemon steers along the route and holds
+the speed. Then the receiver's antenna is shadowed: automatic steering ends, saying
+why, and the throttle lets go. The truth comes from the simulated world.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import math
+
+import numpy as np
+import pytest
+
+from appliance.config import VehicleConfig, load_config
+from appliance.localization.local_frame import LocalFrame
+from appliance.modes import AUTOMATIC_MODES, Mode
+from appliance.routes import RouteStore
+from appliance.routes.store import builtin_routes_dir
+from tests.runtime.test_daemon_control import free_port
+from tests.runtime.test_daemon_dock import running, until
+
+pytestmark = [pytest.mark.slow, pytest.mark.timeout(180.0)]
+
+SPEED_MPS = 2.5  # locked by the operator's + press, reached on the throttle pedal
+FOLLOW_S = 20.0
+
+
+def route_config() -> VehicleConfig:
+    config = load_config("husky-sim")
+    devices = config.devices.model_copy(
+        update={
+            "lms111_left": config.devices.lms111_left.model_copy(update={"port": free_port()}),
+            "lms111_right": config.devices.lms111_right.model_copy(update={"port": free_port()}),
+        }
+    )
+    return config.model_copy(update={"devices": devices})
+
+
+def distance_to_polyline_m(points: np.ndarray, x_m: float, y_m: float) -> float:
+    """The shortest distance from (x, y) to the line through ``points`` (N x 2)."""
+    a, b = points[:-1], points[1:]
+    ab = b - a
+    t = np.clip(((x_m - a[:, 0]) * ab[:, 0] + (y_m - a[:, 1]) * ab[:, 1]) / (ab**2).sum(1), 0, 1)
+    closest = a + t[:, None] * ab
+    return float(np.hypot(closest[:, 0] - x_m, closest[:, 1] - y_m).min())
+
+
+async def test_the_daemon_follows_the_route_and_a_lost_fix_hands_steering_back() -> None:
+    config = route_config()
+    origin = config.positioning.origin
+    assert origin is not None and config.route.selected is not None
+    frame = LocalFrame(origin.lat_deg, origin.lon_deg, origin.alt_m)
+    route = RouteStore(builtin_routes_dir()).load(config.route.selected)
+    points = route.points_enu_m(frame)
+    anchor_m = config.geometry.anchor_point_forward_m
+    async with running(config) as (daemon, twins):
+        await until(lambda: not daemon.core.engage_blockers(), 20.0, daemon, "engageable")
+        await twins.act("press", button="engage")
+        await until(lambda: daemon.core.state.mode is Mode.ENGAGED, 5.0, daemon, "ENGAGED")
+        await twins.act("pedal", pedal="throttle", pct=40.0)
+        await until(lambda: twins.speed_mps() >= SPEED_MPS, 30.0, daemon, "up to speed")
+        await twins.act("press", button="speed_plus")
+        await until(lambda: daemon.core.state.mode is Mode.SPEED_HOLD, 5.0, daemon, "hold")
+        await twins.act("pedal", pedal="throttle", pct=0.0)
+
+        # Following: the truth at the anchor point, sampled as the twins are observed.
+        errors_m: list[float] = []
+        speeds_mps: list[float] = []
+        loop_start = twins.observed_s
+        while twins.observed_s - loop_start < FOLLOW_S:
+            state = await twins.refresh()
+            world = state["world"]
+            yaw = world["yaw_rad"]
+            x = world["x_m"] + anchor_m * math.cos(yaw)
+            y = world["y_m"] + anchor_m * math.sin(yaw)
+            errors_m.append(distance_to_polyline_m(points, x, y))
+            speeds_mps.append(world["speed_mps"])
+            assert daemon.core.state.mode is Mode.SPEED_HOLD, daemon.status_document()
+            await asyncio.sleep(0.1)
+        late = errors_m[len(errors_m) // 2 :]  # the start's 1 m offset converged by then
+        rms_m = math.sqrt(sum(e * e for e in late) / len(late))
+        follow = daemon.status_document()["autopilot"]["follow"]
+        print(f"[route] rms {rms_m:.3f} m, max {max(late):.3f} m, status {follow}")
+        assert rms_m < 0.15 and max(late) < 0.3, (rms_m, max(late))
+        assert abs(follow["cross_track_m"]) < 0.3
+        set_mps = daemon.core.state.set_speed_mps
+        assert set_mps is not None
+        assert abs(speeds_mps[-1] - min(set_mps, follow["target_speed_mps"])) < 0.5
+
+        # The antenna shadowed: the daemon sees no epoch; past the fix-age limit the
+        # steering goes back to the operator, the throttle lets go, and the reason says so.
+        await twins.act("gnss_signal", on=False)
+        shadowed_s = twins.observed_s
+        took_s = await until(
+            lambda: daemon.core.state.mode not in AUTOMATIC_MODES, 5.0, daemon, "handed back"
+        )
+        status = daemon.status_document()
+        said = f"{status.get('faults')} {status.get('fault_history')}"
+        print(f"[route] handed back {took_s:.2f} s after the shadow: {said}")
+        assert "fix lost" in said, said
+        # Epochs come every 0.1 s and the limit is max_fix_age_s: well within a second.
+        assert took_s < config.positioning.max_fix_age_s + 0.5
+        state = await twins.refresh()
+        assert state["gnss"]["shadowed"] and state["gnss"]["dropped_epochs"] > 0
+        assert state["throttle"]["actuator_position_pct"] < 1.0 or (
+            state["brake"]["actuator_position_pct"] > 0.0
+        )
+        assert state["steering"]["command"]["mode"] == "release", state["steering"]
+        assert state["now_s"] > shadowed_s
+
+        # The sky clear again: the error stays latched until the operator acknowledges it
+        # (manual override); then the route can be engaged once more.
+        assert daemon.core.state.mode is Mode.ERROR
+        await twins.act("gnss_signal", on=True)
+        await twins.act("pedal", pedal="brake", pct=60.0)
+        await until(lambda: twins.speed_mps() < 0.05, 30.0, daemon, "stopped")
+        await twins.act("pedal", pedal="brake", pct=0.0)
+        assert daemon.status_document()["faults"] == []  # a fault of automatic control only
+        assert daemon.core.state.mode is Mode.ERROR
+        await twins.act("press", button="manual_override")
+        await until(lambda: not daemon.core.engage_blockers(), 20.0, daemon, "engageable again")
