@@ -399,6 +399,7 @@ class Daemon:
             event_loop_worst=self.loop_monitor.worst(),
             services=self._service_summary(),
             now_s=now_s,
+            links=link_summary(self.io),
         )
 
 

@@ -77,6 +77,8 @@ def status_document(
     ages["steering.pot"] = ages.get("board.steering", math.inf)
     limits = core.staleness.age_limits_s
     critical = set(core.staleness.critical)
+    if core.pedals:  # no PC104 on this vehicle: its status is no input, stale or not
+        ages = {name: age for name, age in ages.items() if not name.startswith("pc104.")}
     doc["inputs"] = {
         name: {
             "age_s": round(age, 4) if math.isfinite(age) else None,

@@ -24,6 +24,16 @@ def render_status(doc: dict[str, Any]) -> str:
     speed = speed_line(doc)
     if speed:
         lines.append(speed)
+    pedal = as_dict(doc.get("pedal_speed"))
+    if pedal:  # the pedals speed path: what our throttle/brake controller is doing, and why
+        state, reason = pedal.get("state"), pedal.get("reason")
+        line = f"pedals: {clean_text(state) if isinstance(state, str) else '?'}"
+        reference = _finite(pedal.get("reference_speed_mps"))
+        if reference is not None:
+            line += f", reference {reference:.2f} m/s"
+        if isinstance(reason, str) and reason:
+            line += f" ({clean_text(reason)})"
+        lines.append(line)
     hold = as_dict(doc.get("hold_to_move"))
     if hold.get("required") is True:
         held = "held" if hold.get("held") is True else "not held"
@@ -55,6 +65,7 @@ def render_status(doc: dict[str, Any]) -> str:
     event_loop = _event_loop_line(doc)
     if event_loop:
         lines.append(event_loop)
+    lines += _name_table("links", doc.get("links"))
     lines += _name_table("services", doc.get("services"))
     return "\n".join(lines)
 

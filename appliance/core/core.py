@@ -306,6 +306,8 @@ class ControlCore:
             document["routes_nearby"] = nearby()
         pedal = self.commands.last_pedal
         if self.pedals:  # what the throttle/brake speed controller is doing, and why
+            # No PC104 on this vehicle: the STOP frame nobody receives is not a command.
+            document.get("commands", {}).pop("pc104", None)
             document["pedal_speed"] = (
                 None
                 if pedal is None

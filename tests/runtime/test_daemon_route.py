@@ -58,6 +58,12 @@ async def test_the_daemon_follows_the_route_and_a_lost_fix_hands_steering_back()
     anchor_m = config.geometry.anchor_point_forward_m
     async with running(config) as (daemon, twins):
         await until(lambda: not daemon.core.engage_blockers(), 20.0, daemon, "engageable")
+        # What `dbw status` shows of a vehicle without a PC104: no PC104 rows at all.
+        doc = daemon.status_document()
+        assert not any(name.startswith("pc104") for name in doc["inputs"]), doc["inputs"]
+        assert "pc104" not in doc["commands"] and "pc104" not in doc["links"]
+        assert doc["links"]["gnss"].startswith("up") and "pedal_speed" in doc
+        assert doc["routes_nearby"][0]["name"] == "offroad-mile"
         await twins.act("press", button="engage")
         await until(lambda: daemon.core.state.mode is Mode.ENGAGED, 5.0, daemon, "ENGAGED")
         await twins.act("pedal", pedal="throttle", pct=40.0)

@@ -268,3 +268,19 @@ def test_any_value_in_any_slot_of_a_full_document_renders(key: str, value: Any) 
 )
 def test_format_duration(seconds: float, text: str) -> None:
     assert format_duration(seconds) == text
+
+
+def test_a_pedals_vehicle_shows_its_speed_controller_and_its_links() -> None:
+    doc = {
+        "mode": "speed_hold",
+        "pedal_speed": {"state": "drive", "reason": "", "reference_speed_mps": 2.5},
+        "links": {
+            "gnss": "up 10.0 epochs/s, bad lines 2",
+            "board.throttle": "up 50 fps, crc=0 reconnects=0 lease_expired=0",
+        },
+    }
+    text = render_status(doc)
+    assert "pedals: drive, reference 2.50 m/s" in text.splitlines()
+    assert line_with(text, "gnss").split(maxsplit=1) == ["gnss", "up 10.0 epochs/s, bad lines 2"]
+    braking = dict(doc, pedal_speed={"state": "stop", "reason": "stop requested"})
+    assert "pedals: stop (stop requested)" in render_status(braking).splitlines()
