@@ -400,6 +400,7 @@ class Daemon:
             services=self._service_summary(),
             now_s=now_s,
             links=link_summary(self.io),
+            gnss=None if self.io.gnss is None else self.io.gnss.status(now_s),
         )
 
 

@@ -68,9 +68,11 @@ def status_document(
     services: dict[str, str],
     now_s: float,
     links: Mapping[str, str] | None = None,
+    gnss: Mapping[str, Any] | None = None,
 ) -> dict[str, Any]:
     """What `dbw status` shows: the core's view plus inputs, loop figures, services, and
-    (given ``links``, `vehicle_io.link_summary`) one line per device link."""
+    (given ``links``, `vehicle_io.link_summary`) one line per device link, and (given
+    ``gnss``, `GnssInput.status`) the receiver's latest epoch."""
     doc: dict[str, Any] = {"vehicle": vehicle, "uptime_s": round(uptime_s, 3)}
     doc.update(core.status(now_s))
     ages = topics.ages_s(now_s)
@@ -94,6 +96,8 @@ def status_document(
     doc["services"] = services
     if links is not None:
         doc["links"] = dict(links)
+    if gnss is not None:  # the latest epoch, where the vehicle has a receiver
+        doc["gnss"] = dict(gnss)
     if core.calibration_problem:
         doc["calibration"] = core.calibration_problem
     return doc

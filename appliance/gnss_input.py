@@ -23,7 +23,7 @@ import asyncio
 import math
 import time
 from collections.abc import Callable
-from typing import Final
+from typing import Any, Final
 
 from appliance.config.models import GeodeticOrigin, GnssEndpoint
 from appliance.localization.gnss_pose import (
@@ -175,3 +175,29 @@ class GnssInput:
         sigma = "sigma ?" if pose.sigma_worst_m is None else f"sigma {pose.sigma_worst_m:.2f} m"
         sats = "? sats" if pose.satellites is None else f"{pose.satellites} sats"
         return f"{head}, quality {pose.quality.name}, {sigma}, {sats}, {rejects}"
+
+    def status(self, now_s: float | None = None) -> dict[str, Any] | None:
+        """The latest epoch for ``dbw status`` and ``dbw route record``: where the antenna
+        is in the local frame, its quality and age; None before the first epoch."""
+        now = self._clock() if now_s is None else now_s
+        sample = self.topic.latest()
+        if sample is None:
+            return None
+        pose = sample.value
+        age_s = now - pose.measurement_time_s
+        base: dict[str, Any] = {
+            "measurement_time_s": pose.measurement_time_s,
+            "age_s": round(age_s, 4) if math.isfinite(age_s) else None,
+        }
+        if isinstance(pose, GnssNoFix):
+            return base | {"fix": False, "reason": pose.reason}
+        return base | {
+            "fix": True,
+            "east_m": round(pose.east_m, 4),
+            "north_m": round(pose.north_m, 4),
+            "yaw_deg": None if pose.yaw_rad is None else round(math.degrees(pose.yaw_rad), 3),
+            "speed_mps": pose.speed_mps,
+            "quality": pose.quality.name,
+            "sigma_m": pose.sigma_worst_m,
+            "satellites": pose.satellites,
+        }

@@ -18,6 +18,7 @@ from appliance.cli.gnss import gnss
 from appliance.cli.lms111 import lms111
 from appliance.cli.localize import localize
 from appliance.cli.route import route
+from appliance.cli.route_record import route_record as _route_record  # noqa: F401 (registers)
 from appliance.cli.sim import sim
 from appliance.logs import LEVELS, configure_logging
 

@@ -2,8 +2,8 @@
 
 `list` shows the vehicle's routes (``<paths.state_dir>/routes``, or ``--dir``), `show` draws
 one, `check` says whether the vehicle can drive a file (exit 0: yes, 1: refused, with every
-problem and where it is), `import` checks a file and stores it. Recording and selecting a
-route talk to the running daemon and live with the control commands.
+problem and where it is), `import` checks a file and stores it. `select` and `record`
+(:mod:`appliance.cli.route_record`) talk to the running daemon.
 
 A bad file, name or option is one line on stderr and exit 2, never a traceback.
 """
@@ -162,6 +162,16 @@ def _check_or_exit(
     chosen: Route, config: VehicleConfig, source: str, min_radius_m: float | None
 ) -> CheckReport:
     """Check ``chosen`` for the vehicle and print the findings; exit 1 when refused."""
+    report = report_check(chosen, config, source, min_radius_m)
+    if report.refused:
+        sys.exit(EXIT_REFUSED)
+    return report
+
+
+def report_check(
+    chosen: Route, config: VehicleConfig, source: str, min_radius_m: float | None
+) -> CheckReport:
+    """Check ``chosen`` for the vehicle and print the findings and the verdict."""
     needed_m = min_radius_m if min_radius_m is not None else min_turn_radius_m(config)
     report = check_route(chosen.own_points_m, needed_m, CheckParams(), chosen.own_frame)
     click.echo(f"{source}: {_describe(chosen)}")
@@ -181,8 +191,8 @@ def _check_or_exit(
     refusals, warnings = counts[Severity.REFUSE], counts[Severity.WARN]
     if report.refused:
         click.echo(f"{source}: REFUSED ({refusals} refusal(s), {warnings} warning(s))")
-        sys.exit(EXIT_REFUSED)
-    click.echo(f"{source}: OK ({warnings} warning(s))")
+    else:
+        click.echo(f"{source}: OK ({warnings} warning(s))")
     return report
 
 

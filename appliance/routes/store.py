@@ -82,14 +82,21 @@ class RouteStore:
             )
         return route
 
-    def save(self, route: Route, *, overwrite: bool = False) -> Path:
-        """Write ``route`` as ``NAME.geojson``, atomically; an existing route is replaced
-        only with ``overwrite``."""
+    def read_only_problem(self) -> str | None:
+        """Why routes cannot be stored here, or None: known before a route is recorded."""
         if self.directory == builtin_routes_dir():
-            raise RouteFileError(
+            return (
                 f"{self.directory} holds the built-in example routes, which are not written: "
                 "set route.routes_dir to a directory of your own (or give --dir)"
             )
+        return None
+
+    def save(self, route: Route, *, overwrite: bool = False) -> Path:
+        """Write ``route`` as ``NAME.geojson``, atomically; an existing route is replaced
+        only with ``overwrite``."""
+        problem = self.read_only_problem()
+        if problem is not None:
+            raise RouteFileError(problem)
         path = self.path_for(route.name)
         if path.exists() and not overwrite:
             raise RouteFileError(f"{path}: route {route.name!r} exists already")
