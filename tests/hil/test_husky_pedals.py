@@ -48,7 +48,7 @@ def husky_config(tmp_path: Path) -> Path:
     data["devices"]["lms111_left"]["port"] = free_port()
     data["devices"]["lms111_right"]["port"] = free_port()
     # One CPU for both processes (see test_dock_vcan.sim_config): half the beams, a 25 Hz
-    # loop and age limits that allow that CPU's scheduling. The fix age stays the profile's.
+    # loop and age limits that allow that CPU's scheduling.
     data["rates"]["control_hz"] = 25.0
     for side in ("lms111_left", "lms111_right"):
         data["devices"][side]["angular_resolution_deg"] = 0.5
@@ -58,6 +58,10 @@ def husky_config(tmp_path: Path) -> Path:
         "actuator_board_max_age_s": 0.3,
         "panel_max_age_s": 0.4,
     }
+    # The fix's age limit too: a stall of that CPU delays the receiver's epochs as it
+    # delays every frame (the limit's own tests are tests/unit/core/test_route_core.py
+    # and tests/runtime/test_daemon_route.py).
+    data["positioning"]["max_fix_age_s"] = 1.0
     data["paths"]["control_socket"] = str(tmp_path / "control.sock")
     data["rates"]["status_report_hz"] = 2.0
     path = tmp_path / "husky.toml"
@@ -116,7 +120,9 @@ def test_the_husky_holds_speed_on_its_throttle_board_across_processes(tmp_path: 
                 break
             # A stall of the one CPU latched an error on the way: the operator stops,
             # clears it (only that signature, see Operator) and starts over.
-            assert operator.clear_stall(status(control), engaged=False), status(control)
+            document = status(control)
+            why = {k: document.get(k) for k in ("mode", "faults", "fault_history")}
+            assert operator.clear_stall(document, engaged=False), why
             assert ask(bench, {"op": "pedal", "pedal": "throttle", "pct": 0.0})["ok"]
             print(f"[husky] attempt {attempt + 1} ended by a stall; again")
         assert held, f"a stall ended every attempt: {operator.recoveries}"
