@@ -18,6 +18,7 @@ mid-recording ends it the same way, with what was recorded.
 from __future__ import annotations
 
 import datetime as dt
+import json
 import math
 import os
 import sys
@@ -31,7 +32,7 @@ from appliance.cli.common import CONFIG_OPTION, bad_input, load_or_exit
 from appliance.cli.route import DIR_OPTION, EXIT_REFUSED, _store, report_check, route
 from appliance.config import VehicleConfig
 from appliance.localization.local_frame import LocalFrame
-from appliance.routes import Directions, RouteFileError, write_route_file
+from appliance.routes import Directions, Route, RouteFileError, write_route_file
 from appliance.routes.recording import RecorderParams, RecordingError, RouteRecorder
 
 POLL_S = 0.05  # twice a 10 Hz receiver's rate: every epoch is seen at least once
@@ -231,10 +232,26 @@ def route_record(
         else:
             click.echo(f"stored route {name!r} as {stored}")
             sys.exit(EXIT_REFUSED if lost is not None else 0)
-    kept = Path.cwd() / f"{name}.geojson"
-    write_route_file(kept, chosen)
-    click.echo(f"kept in {kept}: edit it, then `dbw route import {kept.name}`", err=True)
+    _keep(chosen, name)
     sys.exit(EXIT_REFUSED)
+
+
+def _keep(chosen: Route, name: str) -> None:
+    """The route in the current directory under a name no file has; failing that, on
+    standard output: a drive is not thrown away because a directory is read-only."""
+    kept = Path.cwd() / f"{name}.geojson"
+    stamp = dt.datetime.now(dt.UTC).strftime("%Y%m%dT%H%M%SZ")
+    if kept.exists():
+        kept = kept.with_name(f"{name}-{stamp}.geojson")
+    try:
+        if kept.exists():
+            raise FileExistsError(f"{kept} exists")
+        write_route_file(kept, chosen)
+    except (OSError, RouteFileError) as exc:
+        click.echo(f"dbw: cannot write {kept} ({exc}); the route follows as GeoJSON", err=True)
+        click.echo(json.dumps(chosen.to_geojson()))
+        return
+    click.echo(f"kept in {kept}: edit it, then `dbw route import {kept.name}`", err=True)
 
 
 def _skipped(feed: EpochFilter) -> str:

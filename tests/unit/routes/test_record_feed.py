@@ -2,13 +2,19 @@
 
 from __future__ import annotations
 
+import json
 import math
+from pathlib import Path
 
+import numpy as np
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from appliance.cli.route_record import EpochFilter
+from appliance.cli import route_record
+from appliance.cli.route_record import EpochFilter, _keep
+from appliance.localization.local_frame import LocalFrame
+from appliance.routes import Route, read_route_file
 
 
 def entry(t: float, east: float = 10.0, north: float = 5.0, yaw: float = 90.0, **kw: object):
@@ -73,3 +79,25 @@ def test_record_without_a_daemon_or_with_a_bad_name_says_so(tmp_path: object) ->
     assert result.exit_code == 2 and "error:" in result.output
     result = CliRunner().invoke(cli, ["route", "record", "yard", "--config", "husky-sim"])
     assert result.exit_code == 2 and "built-in" in result.output  # not into the package
+
+
+def test_a_refused_recording_is_kept_without_overwriting_anything(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    frame = LocalFrame(42.4591, -71.2674, 100.0)
+    drive = Route.from_enu("drive", np.array([[0.0, 0.0], [5.0, 0.0], [5.0, 5.0]]), frame)
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "drive.geojson").write_text("somebody's file")
+    _keep(drive, "drive")
+    assert (tmp_path / "drive.geojson").read_text() == "somebody's file"
+    kept = [p for p in tmp_path.iterdir() if p.name.startswith("drive-")]
+    assert len(kept) == 1 and read_route_file(kept[0]).point_count == 3
+    capsys.readouterr()
+
+    def refuse(path: object, route: object) -> None:
+        raise PermissionError(13, "Permission denied")
+
+    monkeypatch.setattr(route_record, "write_route_file", refuse)
+    _keep(drive, "drive")  # nowhere to write: on standard output, not lost
+    out = capsys.readouterr()
+    assert "cannot write" in out.err and json.loads(out.out)["properties"]["name"] == "drive"
