@@ -215,6 +215,11 @@ class LauncherEkf:
         self.last_nis: dict[str, float] = {}
 
     @property
+    def gate_2d(self) -> float:
+        """The NIS beyond which a 2-D measurement (a cylinder, the board) is kept out."""
+        return self._gate_2d
+
+    @property
     def initialized(self) -> bool:
         return self.t_s is not None
 
