@@ -84,7 +84,9 @@ def twin_service(
 
 def pc104_twin_params(config: VehicleConfig) -> TwinParams:
     """The PC104 knows its own vehicle: the wheelbase its rear steering turns about, and
-    the front end whose centre its oblique pattern steers onto the expected axis."""
+    the front end whose centre its oblique pattern steers onto the expected axis; and it
+    times out our commands after the vehicle's `safety.lower_layer_command_timeout_s`, as
+    the boards' twins do."""
     docking = config.docking
     loop = PoseLoopParams(
         wheelbase_m=config.geometry.wheelbase_m,
@@ -92,7 +94,7 @@ def pc104_twin_params(config: VehicleConfig) -> TwinParams:
         max_rear_steer_rad=math.radians(config.limits.max_steer_angle_deg),
         max_crab_rad=math.radians(min(15.0, config.limits.max_steer_angle_deg)),
     )
-    return TwinParams(pose_loop=loop)
+    return TwinParams(pose_loop=loop, command_max_age_s=config.safety.lower_layer_command_timeout_s)
 
 
 def build_simulator(

@@ -62,6 +62,7 @@ def husky_config(tmp_path: Path) -> Path:
     # delays every frame (the limit's own tests are tests/unit/core/test_route_core.py
     # and tests/runtime/test_daemon_route.py).
     data["positioning"]["max_fix_age_s"] = 1.0
+    data["safety"]["lower_layer_command_timeout_s"] = 0.3  # the boards' (test_dock_vcan)
     data["paths"]["control_socket"] = str(tmp_path / "control.sock")
     data["rates"]["status_report_hz"] = 2.0
     path = tmp_path / "husky.toml"
