@@ -103,6 +103,33 @@ def docking(document: dict[str, Any]) -> dict[str, Any]:
     return dict(document.get("autopilot", {}).get("docking", {}))
 
 
+def one_cpu_allowances(data: dict[str, Any]) -> None:
+    """What a vehicle file needs to run its daemon and simulated vehicle on one CPU.
+
+    User-mode Linux gives the daemon, the simulated vehicle, candump and the test one
+    CPU, on which the two processes alone need nearly all of it (measured: 47 % and 51 %
+    idling in front of the launcher, against 26 % and 29 % on the host). So the scanners
+    run at 25 Hz with 0.5° (a mode the LMS111 has; half the beams to render and to
+    read), the control loop runs at 25 Hz (the PC104's frames stay at 50 Hz), and the
+    age limits allow the scheduling of that one CPU: what these tests are about is the
+    path between two processes, and the limits have their own tests. The lower layers'
+    command timeout goes with them (the PC104 twin's and the boards'): a stall of that
+    CPU delays the daemon's commands as it delays every frame (seen in a fresh clone: a
+    PC104 command_timeout 0.31 m from the troughs, cleared in 38 ms).
+    """
+    data["rates"]["control_hz"] = 25.0
+    for side in ("lms111_left", "lms111_right"):
+        data["devices"][side]["angular_resolution_deg"] = 0.5
+    data["staleness"] |= {
+        "scan_max_age_s": 0.3,
+        "pc104_status_max_age_s": 0.3,
+        "steering_pot_max_age_s": 0.2,
+        "actuator_board_max_age_s": 0.3,
+        "panel_max_age_s": 0.4,
+    }
+    data["safety"]["lower_layer_command_timeout_s"] = 0.3
+
+
 def sim_config(tmp_path: Path) -> Path:
     config = load_config("flatbed-sim")
     data = config.model_dump(mode="json")
@@ -115,27 +142,7 @@ def sim_config(tmp_path: Path) -> Path:
         "start_yaw_deg": 1.0,
     }
     data["docking"]["pose_loop"] = "pc104"
-    # User-mode Linux gives the daemon, the simulated vehicle, candump and this test one
-    # CPU, on which the two processes alone need nearly all of it (measured: 47 % and 51 %
-    # idling in front of the launcher, against 26 % and 29 % on the host). So the scanners
-    # run at 25 Hz with 0.5° (a mode the LMS111 has; half the beams to render and to
-    # read), the control loop runs at 25 Hz (the PC104's frames stay at 50 Hz), and the
-    # age limits allow the scheduling of that one CPU: what this test is about is the CAN
-    # path between two processes, and the limits have their own tests.
-    data["rates"]["control_hz"] = 25.0
-    for side in ("lms111_left", "lms111_right"):
-        data["devices"][side]["angular_resolution_deg"] = 0.5
-    data["staleness"] |= {
-        "scan_max_age_s": 0.3,
-        "pc104_status_max_age_s": 0.3,
-        "steering_pot_max_age_s": 0.2,
-        "actuator_board_max_age_s": 0.3,
-        "panel_max_age_s": 0.4,
-    }
-    # The lower layers' command timeout with them (the PC104 twin's and the boards'): a
-    # stall of that CPU delays the daemon's commands as it delays every frame (seen in a
-    # fresh clone: a PC104 command_timeout 0.31 m from the troughs, cleared in 38 ms).
-    data["safety"]["lower_layer_command_timeout_s"] = 0.3
+    one_cpu_allowances(data)
     data["paths"]["control_socket"] = str(tmp_path / "control.sock")
     data["rates"]["status_report_hz"] = 2.0
     path = tmp_path / "flatbed.toml"

@@ -32,6 +32,7 @@ from tests.hil.test_dock_vcan import (
     as_the_service_runs_it,
     ask,
     explained,
+    one_cpu_allowances,
     slowly,
     status,
 )
@@ -47,22 +48,11 @@ def husky_config(tmp_path: Path) -> Path:
     data = load_config("husky-sim").model_dump(mode="json")
     data["devices"]["lms111_left"]["port"] = free_port()
     data["devices"]["lms111_right"]["port"] = free_port()
-    # One CPU for both processes (see test_dock_vcan.sim_config): half the beams, a 25 Hz
-    # loop and age limits that allow that CPU's scheduling.
-    data["rates"]["control_hz"] = 25.0
-    for side in ("lms111_left", "lms111_right"):
-        data["devices"][side]["angular_resolution_deg"] = 0.5
-    data["staleness"] |= {
-        "scan_max_age_s": 0.3,
-        "steering_pot_max_age_s": 0.2,
-        "actuator_board_max_age_s": 0.3,
-        "panel_max_age_s": 0.4,
-    }
+    one_cpu_allowances(data)
     # The fix's age limit too: a stall of that CPU delays the receiver's epochs as it
     # delays every frame (the limit's own tests are tests/unit/core/test_route_core.py
     # and tests/runtime/test_daemon_route.py).
     data["positioning"]["max_fix_age_s"] = 1.0
-    data["safety"]["lower_layer_command_timeout_s"] = 0.3  # the boards' (test_dock_vcan)
     data["paths"]["control_socket"] = str(tmp_path / "control.sock")
     data["rates"]["status_report_hz"] = 2.0
     path = tmp_path / "husky.toml"
