@@ -54,15 +54,21 @@ def _socket_options(command: Callable[..., None]) -> Callable[..., None]:
 INSTALLED_CONFIG = "/etc/dbw/vehicle.toml"
 
 
+def running_config_name(config_name: str | None) -> str | None:
+    """The vehicle file of the daemon a control command talks to: ``--config``, else
+    ``DBW_CONFIG``, else the installed one, else None (the built-in default)."""
+    if config_name is not None:
+        return config_name
+    return os.environ.get("DBW_CONFIG") or (
+        INSTALLED_CONFIG if os.path.exists(INSTALLED_CONFIG) else None
+    )
+
+
 def _socket_path(socket_path: str | None, config_name: str | None) -> str:
     if socket_path:
         return socket_path
-    if config_name is None:
-        config_name = os.environ.get("DBW_CONFIG") or (
-            INSTALLED_CONFIG if os.path.exists(INSTALLED_CONFIG) else None
-        )
     try:
-        return load_config(config_name).paths.control_socket
+        return load_config(running_config_name(config_name)).paths.control_socket
     except ConfigError as exc:
         click.echo(exc.render(), err=True)
         sys.exit(EXIT_NO_DAEMON)

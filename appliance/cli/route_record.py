@@ -20,7 +20,6 @@ from __future__ import annotations
 import datetime as dt
 import json
 import math
-import os
 import sys
 import time
 from dataclasses import dataclass, field
@@ -95,16 +94,6 @@ def epoch_filter(config: VehicleConfig) -> EpochFilter:
     )
 
 
-def _config(config_name: str | None) -> VehicleConfig:
-    from appliance.cli.control import INSTALLED_CONFIG
-
-    if config_name is None:  # as the control commands: the vehicle the daemon runs
-        config_name = os.environ.get("DBW_CONFIG") or (
-            INSTALLED_CONFIG if os.path.exists(INSTALLED_CONFIG) else None
-        )
-    return load_or_exit(config_name)
-
-
 @route.command("record")
 @click.argument("name")
 @click.option(
@@ -153,11 +142,11 @@ def route_record(
 
     Exit 0 stored; 1 refused by the check (then kept as ./NAME.geojson to edit and
     import), nothing recorded, or ended by a lost daemon; 2 bad input or no daemon."""
-    from appliance.cli.control import _fail, _socket_path
+    from appliance.cli.control import _fail, _socket_path, running_config_name
     from appliance.control_client import query_sync
     from appliance.control_protocol import ControlSocketError
 
-    config = _config(config_name)
+    config = load_or_exit(running_config_name(config_name))  # the daemon's vehicle
     origin = config.positioning.origin
     if origin is None:
         bad_input("positioning.origin is not set: routes are stored in lon/lat around it")
