@@ -51,6 +51,17 @@ def as_the_service_runs_it() -> None:
         os.nice(-5)
 
 
+def start_daemon(config: Path, log: Path) -> subprocess.Popen[str]:
+    """`dbw run --config CONFIG` as the service runs it, its JSON log into ``log``."""
+    with log.open("w") as out:
+        return subprocess.Popen(
+            [sys.executable, "-m", "appliance", "--log-format", "json", "run", "--config",
+             str(config)],
+            cwd=PROJECT_ROOT, stdout=out, stderr=subprocess.STDOUT, text=True,
+            preexec_fn=as_the_service_runs_it,
+        )  # fmt: skip
+
+
 def ask(path: Path, request: dict[str, Any]) -> dict[str, Any]:
     """One request on a control or bench socket (each its own connection)."""
 
@@ -235,13 +246,7 @@ def test_a_docking_approach_over_vcan(vcan_channel: str, tmp_path: Path) -> None
             )
         procs.append(sim)
         wait_for(daemon_config.exists, 60, "dbw sim to write its config", sim_log, (sim,))
-        with daemon_log.open("w") as out:
-            daemon = subprocess.Popen(
-                [sys.executable, "-m", "appliance", "--log-format", "json", "run", "--config",
-                 str(daemon_config)],
-                cwd=PROJECT_ROOT, stdout=out, stderr=subprocess.STDOUT, text=True,
-                preexec_fn=as_the_service_runs_it,
-            )  # fmt: skip
+        daemon = start_daemon(daemon_config, daemon_log)
         procs.append(daemon)
 
         operator = Operator(bench)

@@ -16,7 +16,6 @@ from __future__ import annotations
 import contextlib
 import statistics
 import subprocess
-import sys
 import time
 from pathlib import Path
 from typing import Any
@@ -25,15 +24,15 @@ import pytest
 
 from appliance.config import load_config
 from appliance.config.loader import to_toml
-from tests.hil.test_daemon_vcan import PROJECT_ROOT, dbw, stop_all, wait_for
+from tests.hil.test_daemon_vcan import dbw, stop_all, wait_for
 from tests.hil.test_dock_vcan import (
     STALL_RECOVERIES,
     Operator,
-    as_the_service_runs_it,
     ask,
     explained,
     one_cpu_allowances,
     slowly,
+    start_daemon,
     status,
 )
 from tests.runtime.test_daemon_control import free_port
@@ -85,13 +84,7 @@ def test_the_husky_holds_speed_on_its_throttle_board_across_processes(tmp_path: 
         written = load_config(str(daemon_config))
         assert not written.simulation.enabled and written.speed_path == "pedals"
         assert written.devices.gnss is not None and written.devices.gnss.port.startswith("/")
-        with daemon_log.open("w") as out:
-            daemon = subprocess.Popen(
-                [sys.executable, "-m", "appliance", "--log-format", "json", "run", "--config",
-                 str(daemon_config)],
-                cwd=PROJECT_ROOT, stdout=out, stderr=subprocess.STDOUT, text=True,
-                preexec_fn=as_the_service_runs_it,
-            )  # fmt: skip
+        daemon = start_daemon(daemon_config, daemon_log)
         procs.append(daemon)
         alive = (sim, daemon)
         operator = Operator(bench)
