@@ -190,6 +190,10 @@ class ControlLoop:
         self.step_times = StepTimes()
         self._clock = clock
         self.on_output: list[Callable[[CoreOutput], None]] = []
+        # Called with each cycle's time, the inputs the core saw and its output (the
+        # recorder), and with the time of each (re)start of the core: replay needs both.
+        self.on_cycle: list[Callable[[float, ControlInputs, CoreOutput], None]] = []
+        self.on_start: list[Callable[[float], None]] = []
         self.halted = False
         self.slow_cycles = SlowCycleLog()
 
@@ -205,7 +209,8 @@ class ControlLoop:
     def cycle(self, now_s: float) -> CoreOutput:
         """One cycle; public so tests and benchmarks can drive the loop with a fake clock."""
         started = self._clock()
-        output = self.core.step(self.inputs.read(now_s), now_s)
+        inputs = self.inputs.read(now_s)
+        output = self.core.step(inputs, now_s)
         step_s = self._clock() - started
         self.step_times.update(step_s)
         period_ms = self.ticker.period_s * 1e3
@@ -218,12 +223,16 @@ class ControlLoop:
             level(note.event, mode=str(output.mode), **note.fields)
         for hook in self.on_output:
             hook(output)
+        for cycle_hook in self.on_cycle:
+            cycle_hook(now_s, inputs, output)
         self.last_output = output
         return output
 
     async def run(self, ctx: ServiceContext) -> None:
         # Every (re)start begins in BOOT: a restarted loop never resumes an engagement.
         self.core.reset()
+        for start_hook in self.on_start:
+            start_hook(self._clock())
         self.ticker.reset()
         self.slow_cycles.reset()
         log.info("control_loop_started", rate_hz=round(self.rate_hz, 3))

@@ -23,11 +23,11 @@ from dataclasses import dataclass
 from typing import Any
 
 from appliance.config import VehicleConfig
-from appliance.config.calibration import Calibration
+from appliance.config.calibration import Calibration, CalibrationFile
 from appliance.config.calibration_file import (
     BUILTIN_SIMULATED,
     CalibrationError,
-    load_calibration,
+    dumps_calibration,
     read_calibration_file,
 )
 from appliance.control_loop import ControlLoop, OperatorWatch, TopicInputs
@@ -38,6 +38,7 @@ from appliance.core.output import CoreOutput
 from appliance.daemon_status import service_summary, status_document, status_line
 from appliance.logs import get_logger
 from appliance.loop_monitor import LoopLag, LoopMonitor
+from appliance.recording.service import Recorder
 from appliance.sim.scanner_truth import with_simulated_scanners
 from appliance.supervisor import ServiceContext, ServiceSpec, ServiceState, Supervisor
 from appliance.systemd_notify import SystemdNotifier
@@ -57,6 +58,10 @@ log = get_logger("daemon")
 
 EXIT_OK = 0
 SWITCH_INTERVAL_S = 0.001
+# The recorder beats with each status line of its process (1 Hz); starting it is an
+# interpreter and its imports.
+RECORDER_HEARTBEAT_DEADLINE_S = 5.0
+RECORDER_STARTUP_GRACE_S = 15.0
 EXIT_FAILURE = 1
 
 
@@ -101,6 +106,7 @@ class Daemon:
         clock: Callable[[], float] = time.monotonic,
         autopilot: AutopilotSource | None = None,
         control_socket: str | None = None,
+        record: bool | None = None,
     ) -> None:
         self.config = config
         self.clock = clock
@@ -111,7 +117,10 @@ class Daemon:
         self.io = vehicle_io if vehicle_io is not None else build_vehicle_io(config, policy)
         for target in self.io.safe_stop_targets:
             self.safe_stop.add_target(target)
-        calibration, problem = load_vehicle_calibration(config)
+        calibration_model, problem = load_vehicle_calibration_file(config)
+        calibration = (
+            None if calibration_model is None else Calibration.from_file(calibration_model)
+        )
         self.core = ControlCore(config, calibration, problem, autopilot=autopilot)
         self.control = ControlLoop(
             self.core,
@@ -134,6 +143,18 @@ class Daemon:
         self.status_topic: Topic[CoreOutput] = Topic("control.status")
         self.io.topics.register(self.status_topic.name, self.status_topic)
         self.control.on_output.append(self._publish_status)
+        # The flight recorder: every sample, cycle and request, to MCAP (off: None).
+        self.recorder: Recorder | None = None
+        if record if record is not None else config.recording.enabled:
+            self.recorder = Recorder(
+                config,
+                "" if calibration_model is None else dumps_calibration(calibration_model),
+                calibration_problem=problem,
+                clock=clock,
+            )
+            self.recorder.attach(self.io.topics)
+            self.control.on_cycle.append(self.recorder.on_cycle)
+            self.control.on_start.append(self.recorder.on_core_reset)
         self.control_server = ControlServer(
             control_socket if control_socket is not None else config.paths.control_socket,
             DaemonControlApi(self),
@@ -160,6 +181,20 @@ class Daemon:
                 run=self._status_service,
                 critical=False,
                 restart=policy,
+            ),
+            *(
+                []
+                if self.recorder is None
+                else [
+                    ServiceSpec(
+                        name="recorder",
+                        run=self.recorder.run,
+                        critical=False,
+                        restart=policy,
+                        heartbeat_deadline_s=RECORDER_HEARTBEAT_DEADLINE_S,
+                        startup_grace_s=RECORDER_STARTUP_GRACE_S,
+                    )
+                ]
             ),
         ]
         self.supervisor = Supervisor(
@@ -253,6 +288,8 @@ class Daemon:
         self.safe_stop.engage(f"shutdown: {result.reason}")
         # Periodic senders (the PC104 command) transmit the safe command on their next tick.
         await asyncio.sleep(2.0 / self.config.rates.pc104_command_hz)
+        if self.recorder is not None:  # its last file finished, with the safe stop in it
+            await self.recorder.close()
         root.cancel()
         grace_s = self.config.safety.shutdown_grace_s
         done, _ = await asyncio.wait({root}, timeout=grace_s)
@@ -414,29 +451,43 @@ class DaemonControlApi:
         return self._daemon.status_document()
 
     def request(self, name: str) -> tuple[bool, str]:
-        return self._daemon.core.request(name, self._daemon.clock())
+        now_s = self._daemon.clock()
+        accepted, message = self._daemon.core.request(name, now_s)
+        if self._daemon.recorder is not None:
+            self._daemon.recorder.on_request(now_s, "request", name, accepted, message)
+        return accepted, message
 
     def select_route(self, name: str) -> tuple[bool, str]:
-        return self._daemon.core.select_route(name)
+        accepted, message = self._daemon.core.select_route(name)
+        recorder = self._daemon.recorder
+        if recorder is not None:
+            recorder.on_request(self._daemon.clock(), "select_route", name, accepted, message)
+        return accepted, message
 
 
 def load_vehicle_calibration(config: VehicleConfig) -> tuple[Calibration | None, str]:
     """The calibration, or None and why: the daemon still runs, but will not leave SELF_CHECK."""
+    model, problem = load_vehicle_calibration_file(config)
+    return (None if model is None else Calibration.from_file(model)), problem
+
+
+def load_vehicle_calibration_file(config: VehicleConfig) -> tuple[CalibrationFile | None, str]:
+    """The validated calibration file (what the recorder keeps), or None and why."""
     path = config.paths.calibration_file
     try:
+        model = read_calibration_file(path, config.name, config.simulation.enabled)
         if str(path) == BUILTIN_SIMULATED:
-            model = read_calibration_file(path, config.name, config.simulation.enabled)
-            calibration = Calibration.from_file(with_simulated_scanners(model, config))
-        else:
-            calibration = load_calibration(path, config.name, config.simulation.enabled)
+            model = with_simulated_scanners(model, config)
     except CalibrationError as exc:
         log.error("calibration_invalid", path=path, problems=exc.render())
         return None, f"calibration {path}: " + "; ".join(str(p) for p in exc.problems)
-    log.info("calibration_loaded", path=path, source=calibration.source)
-    return calibration, ""
+    log.info("calibration_loaded", path=path, source=str(path))
+    return model, ""
 
 
-def run_daemon(config: VehicleConfig, duration_s: float | None = None) -> int:
+def run_daemon(
+    config: VehicleConfig, duration_s: float | None = None, record: bool | None = None
+) -> int:
     """Entry point for `dbw run`: run until stopped, exit hard if a task refused to stop.
 
     ``asyncio.run`` would wait forever for a task that ignores cancellation, so the hard
@@ -447,7 +498,7 @@ def run_daemon(config: VehicleConfig, duration_s: float | None = None) -> int:
         current = asyncio.current_task()
         if current is not None:
             current.set_name("daemon")
-        result = await Daemon(config).run(duration_s=duration_s)
+        result = await Daemon(config, record=record).run(duration_s=duration_s)
         if result.must_force_exit:
             with contextlib.suppress(Exception):
                 sys.stdout.flush()

@@ -29,5 +29,8 @@ class TopicRegistry:
             raise ValueError(f"topic {name!r} is already registered")
         self._topics[name] = topic
 
+    def items(self) -> list[tuple[str, Topic[Any]]]:
+        return list(self._topics.items())
+
     def ages_s(self, now_s: float) -> dict[str, float]:
         return {name: topic.age_s(now_s) for name, topic in self._topics.items()}

@@ -52,12 +52,18 @@ def cli(log_level: str, log_format: str) -> None:
     default=None,
     help="Stop cleanly after this many seconds (demos and tests). Default: run until signalled.",
 )
-def run(config_name: str | None, duration_s: float | None) -> None:
+@click.option(
+    "--record/--no-record",
+    default=None,
+    help="Record to MCAP (recording.directory) or not. Default: the vehicle file's "
+    "recording.enabled (on for a vehicle, off for the built-in simulated ones).",
+)
+def run(config_name: str | None, duration_s: float | None, record: bool | None) -> None:
     """Run the daemon (what the systemd unit starts)."""
     from appliance.daemon import run_daemon
 
     vehicle = load_or_exit(config_name)
-    sys.exit(run_daemon(vehicle, duration_s=duration_s))
+    sys.exit(run_daemon(vehicle, duration_s=duration_s, record=record))
 
 
 cli.add_command(config)

@@ -400,6 +400,38 @@ class SimPlacement(StrEnum):
     INLINE = "inline"
 
 
+class Recording(_Model):
+    """The flight recorder (`appliance/recording/`): every input, sample and output to MCAP.
+
+    On by default: after a field incident the recording is what can be replayed. It never
+    holds up the control loop: a recorder that falls behind drops and counts, and on a
+    filling disk it stops before the disk is full, never the vehicle.
+    """
+
+    enabled: bool = True
+    directory: str | None = None  # None: <paths.state_dir>/recordings
+    # A file is closed and the next one begun past either bound, so a file stays small
+    # enough to copy off the vehicle and a crash costs at most one file's tail.
+    split_size_mb: float = Field(256.0, gt=0.0, le=16384.0)
+    split_duration_s: float = Field(600.0, gt=0.0, le=86400.0)
+    # The oldest closed files are deleted while the directory holds more than this.
+    quota_mb: float = Field(8192.0, gt=0.0)
+    # Free space on the recording's file system: below warn a warning, below stop the
+    # recorder stops writing (and resumes above warn).
+    warn_free_mb: float = Field(2048.0, ge=0.0)
+    stop_free_mb: float = Field(512.0, ge=0.0)
+    # A chunk is finished and written at least this often, so a crash loses no more.
+    flush_interval_s: float = Field(1.0, gt=0.0, le=60.0)
+    # What the daemon may hold for a recorder that falls behind before it drops.
+    max_backlog_mb: float = Field(16.0, gt=0.0, le=1024.0)
+
+    @model_validator(mode="after")
+    def _thresholds(self) -> Self:
+        if self.stop_free_mb > self.warn_free_mb:
+            raise ValueError("stop_free_mb must not be above warn_free_mb")
+        return self
+
+
 class Simulation(_Model):
     """The built-in simulated vehicle: the world and the twins of every device."""
 
@@ -443,6 +475,7 @@ class VehicleConfig(_Model):
     speed_path: Literal["pc104", "pedals"] = "pc104"
     supervision: Supervision = Supervision()
     paths: Paths = Paths()
+    recording: Recording = Recording()
     simulation: Simulation = Simulation(enabled=False)
 
     @model_validator(mode="after")
