@@ -438,6 +438,7 @@ class Daemon:
             now_s=now_s,
             links=link_summary(self.io),
             gnss=None if self.io.gnss is None else self.io.gnss.status(now_s),
+            recording=None if self.recorder is None else self.recorder.status(),
         )
 
 

@@ -69,6 +69,7 @@ def status_document(
     now_s: float,
     links: Mapping[str, str] | None = None,
     gnss: Mapping[str, Any] | None = None,
+    recording: Mapping[str, Any] | None = None,
 ) -> dict[str, Any]:
     """What `dbw status` shows: the core's view plus inputs, loop figures, services, and
     (given ``links``, `vehicle_io.link_summary`) one line per device link, and (given
@@ -98,6 +99,8 @@ def status_document(
         doc["links"] = dict(links)
     if gnss is not None:  # the latest epoch, where the vehicle has a receiver
         doc["gnss"] = dict(gnss)
+    if recording is not None:  # the recorder's state, file, counts and drops
+        doc["recording"] = dict(recording)
     if core.calibration_problem:
         doc["calibration"] = core.calibration_problem
     return doc

@@ -17,6 +17,7 @@ from appliance.cli.features import features
 from appliance.cli.gnss import gnss
 from appliance.cli.lms111 import lms111
 from appliance.cli.localize import localize
+from appliance.cli.record import record, replay
 from appliance.cli.route import route
 from appliance.cli.route_record import route_record as _route_record  # noqa: F401 (registers)
 from appliance.cli.sim import sim
@@ -67,6 +68,8 @@ def run(config_name: str | None, duration_s: float | None, record: bool | None) 
 
 
 cli.add_command(config)
+cli.add_command(record)
+cli.add_command(replay)
 cli.add_command(lms111)
 cli.add_command(sim)
 cli.add_command(calibration)

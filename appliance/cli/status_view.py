@@ -66,8 +66,39 @@ def render_status(doc: dict[str, Any]) -> str:
     if event_loop:
         lines.append(event_loop)
     lines += _name_table("links", doc.get("links"))
+    recording = _recording_line(doc)
+    if recording:
+        lines.append(recording)
     lines += _name_table("services", doc.get("services"))
     return "\n".join(lines)
+
+
+def _recording_line(doc: dict[str, Any]) -> str:
+    """One line: where the recorder writes, how much, and anything it dropped."""
+    rec = as_dict(doc.get("recording"))
+    if not rec:
+        return ""
+    state = clean_text(rec.get("state")) if isinstance(rec.get("state"), str) else "starting"
+    parts = [state]
+    reason = rec.get("reason")
+    if isinstance(reason, str) and reason:
+        parts.append(clean_text(reason))
+    if isinstance(rec.get("file"), str):
+        parts.append(clean_text(rec.get("file")))
+    written = _finite(rec.get("bytes"))
+    if written is not None:
+        parts.append(f"{written / 1e6:.1f} MB written")
+    dropped: dict[str, Any] = {}
+    for key in ("dropped_in_daemon", "dropped"):
+        for name, count in as_dict(rec.get(key)).items():
+            if isinstance(count, int) and count:
+                dropped[clean_text(name)] = dropped.get(clean_text(name), 0) + count
+    parts.append(
+        "dropped " + ", ".join(f"{n} {k}" for k, n in sorted(dropped.items()))
+        if dropped
+        else "nothing dropped"
+    )
+    return "recording: " + "; ".join(parts)
 
 
 def _headline(doc: dict[str, Any]) -> str:
