@@ -155,6 +155,7 @@ class Daemon:
             self.recorder.attach(self.io.topics)
             self.control.on_cycle.append(self.recorder.on_cycle)
             self.control.on_start.append(self.recorder.on_core_reset)
+            self.core.request_listeners.append(self.recorder.on_request)
         self.control_server = ControlServer(
             control_socket if control_socket is not None else config.paths.control_socket,
             DaemonControlApi(self),
@@ -452,18 +453,10 @@ class DaemonControlApi:
         return self._daemon.status_document()
 
     def request(self, name: str) -> tuple[bool, str]:
-        now_s = self._daemon.clock()
-        accepted, message = self._daemon.core.request(name, now_s)
-        if self._daemon.recorder is not None:
-            self._daemon.recorder.on_request(now_s, "request", name, accepted, message)
-        return accepted, message
+        return self._daemon.core.request(name, self._daemon.clock())
 
     def select_route(self, name: str) -> tuple[bool, str]:
-        accepted, message = self._daemon.core.select_route(name)
-        recorder = self._daemon.recorder
-        if recorder is not None:
-            recorder.on_request(self._daemon.clock(), "select_route", name, accepted, message)
-        return accepted, message
+        return self._daemon.core.select_route(name)
 
 
 def load_vehicle_calibration(config: VehicleConfig) -> tuple[Calibration | None, str]:

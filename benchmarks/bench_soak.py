@@ -145,9 +145,15 @@ class PhaseRecorder:
 
 
 class Soak:
-    def __init__(self, rate_hz: float, socket_path: str) -> None:
+    def __init__(self, rate_hz: float, socket_path: str, record_dir: str | None = None) -> None:
         self.rate_hz = rate_hz
-        self.daemon = Daemon(soak_config(rate_hz), control_socket=socket_path)
+        config = soak_config(rate_hz)
+        if record_dir is not None:  # the flight recorder on (benchmarks/bench_recording.py)
+            recording = config.recording.model_copy(
+                update={"enabled": True, "directory": record_dir}
+            )
+            config = config.model_copy(update={"recording": recording})
+        self.daemon = Daemon(config, control_socket=socket_path)
         self.core = self.daemon.core
         self.watch = Watch()
         self.daemon.control.on_output.append(self.watch)
@@ -187,6 +193,10 @@ class Soak:
         held = self.core.state.set_speed_mps
         assert held is not None and abs(held - speed_mps) < step, held
 
+    def recorder_pid(self) -> int | None:
+        recorder = self.daemon.recorder
+        return None if recorder is None else recorder.pid
+
     def _ready(self) -> bool:
         return self.core.state.mode is Mode.READY
 
@@ -215,6 +225,8 @@ class Soak:
         sim = self.daemon.io.sim_process
         sim_pid = sim.pid if sim is not None else None
         sim0 = cpu_s(sim_pid) if sim_pid else 0.0
+        rec_pid = self.recorder_pid()
+        rec0 = cpu_s(rec_pid) if rec_pid else 0.0
         cpu0, wall0 = time.process_time(), time.monotonic()
         mode0 = self.core.state.mode
         end_s = wall0 + seconds
@@ -243,6 +255,7 @@ class Soak:
         )
         daemon_cpu = 100 * (time.process_time() - cpu0) / wall_s
         sim_cpu = 100 * (cpu_s(sim_pid) - sim0) / wall_s if sim_pid else float("nan")
+        rec_cpu = 100 * (cpu_s(rec_pid) - rec0) / wall_s if rec_pid else None
         assert recorder.original is not None
         control.ticker.stats.update = recorder.original  # type: ignore[method-assign,assignment]
         late.close()
@@ -265,6 +278,7 @@ class Soak:
             + (f"; mode changes {self.watch.modes}" if self.watch.modes else ""),
             f"    event loop: longest callback {worst_callback[0]:.2f} ms ({worst_callback[1]})",
             f"    CPU: daemon {daemon_cpu:.0f} % of a core, simulated vehicle {sim_cpu:.0f} %"
+            + ("" if rec_cpu is None else f", recorder {rec_cpu:.0f} %")
             + ("; the simulated vehicle was RESTARTED" if restarted else ""),
             steal_line,
             *([fault_steal] if fault_steal else []),

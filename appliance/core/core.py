@@ -22,6 +22,7 @@ by the GNSS/INS, and the PC104 no input at all (not critical, no readiness, no f
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from typing import Any
 
 from appliance.config import parts
@@ -104,6 +105,10 @@ _NOT_READY = EngageConditions(
 )
 
 
+# (kind "request" or "select_route", name, now_s or None, accepted, message)
+RequestListener = Callable[[str, str, float | None, bool, str], None]
+
+
 class ControlCore:
     def __init__(
         self,
@@ -134,6 +139,8 @@ class ControlCore:
             config, calibration, self.pattern, self.mode_params.max_speed_mps
         )
         self.panel = PanelDecoder()
+        # Told of every request and route selection, with the answer (the recorder).
+        self.request_listeners: list[RequestListener] = []
         self.reset()
 
     def reset(self) -> None:
@@ -238,8 +245,16 @@ class ControlCore:
     def request(self, name: str, now_s: float) -> tuple[bool, str]:
         """A bench command, decided now against the last cycle's conditions.
 
-        The commands it changes go out with the next cycle (within one period).
+        The commands it changes go out with the next cycle (within one period). Every
+        request and its answer also goes to the request listeners (the recorder): a
+        request changes the core's state between cycles, so replay needs it.
         """
+        accepted, message = self._request(name, now_s)
+        for listener in self.request_listeners:
+            listener("request", name, now_s, accepted, message)
+        return accepted, message
+
+    def _request(self, name: str, now_s: float) -> tuple[bool, str]:
         m = self._measured
         speed = m.speed_mps if m is not None and m.speed_mps is not None else 0.0
         before = self.state
@@ -278,7 +293,13 @@ class ControlCore:
     def select_route(self, name: str) -> tuple[bool, str]:
         """`dbw route select`: the route the `route` source follows. Refused while under
         automatic control (a route is changed standing, between engagements), and by
-        any other source."""
+        any other source. Told to the request listeners as a request is."""
+        accepted, message = self._select_route(name)
+        for listener in self.request_listeners:
+            listener("select_route", name, None, accepted, message)
+        return accepted, message
+
+    def _select_route(self, name: str) -> tuple[bool, str]:
         select = getattr(self.autopilot, "select", None)
         if select is None:
             return False, f"the autopilot source is {self.autopilot.name!r}, not 'route'"

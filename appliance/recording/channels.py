@@ -21,6 +21,8 @@ from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
 from typing import Any
 
+import numpy as np
+
 from appliance.core.inputs import ControlInputs
 from appliance.core.output import CoreOutput, Note
 from appliance.localization.gnss_pose import GnssNoFix, GnssPose
@@ -204,8 +206,9 @@ def laser_scan(scan: MountedScan, log_time_ns: int) -> dict[str, Any]:
         },
         "start_angle": float(angles[0]) if len(angles) else 0.0,
         "end_angle": float(angles[-1]) if len(angles) else 0.0,
-        "ranges": [round(r, 4) for r in ranges.tolist()],
-        "intensities": [] if rssi is None else [float(v) for v in rssi.data.tolist()],
+        # To 0.1 mm (the device resolves 1 mm): the shortest decimal text JSON can carry.
+        "ranges": np.round(ranges, 4).tolist(),
+        "intensities": [] if rssi is None else rssi.data.astype(float).tolist(),
     }
 
 
@@ -261,10 +264,10 @@ def log_line(note: Note, mode: str, log_time_ns: int) -> dict[str, Any]:
 
 
 def encode_request(
-    now_s: float, kind: str, name: str, accepted: bool, message: str
+    now_s: float | None, kind: str, name: str, accepted: bool, message: str
 ) -> Iterator[Encoded]:
     payload = {
-        "now_s": encode(now_s, float),
+        "now_s": encode(now_s, float | None),
         "kind": kind,
         "name": name,
         "accepted": accepted,

@@ -193,7 +193,7 @@ class Replayer:
         if [accepted, text] != recorded:
             self._diverged(
                 message.log_time_ns,
-                decode(data.get("now_s"), float),
+                decode(data.get("now_s"), float | None) or math.nan,
                 REQUEST_TOPIC,
                 [("answer", recorded, [accepted, text])],
             )

@@ -175,7 +175,9 @@ class Recorder:
     def on_core_reset(self, now_s: float) -> None:
         self._send("reset", ("reset", self._log_ns(), now_s))
 
-    def on_request(self, now_s: float, kind: str, name: str, accepted: bool, message: str) -> None:
+    def on_request(
+        self, kind: str, name: str, now_s: float | None, accepted: bool, message: str
+    ) -> None:
         self._send("request", ("request", self._log_ns(), now_s, kind, name, accepted, message))
 
     def _log_ns(self) -> int:
@@ -196,6 +198,12 @@ class Recorder:
             return
         writer.write(_frame(frame))
         self.counts.sent += 1
+
+    @property
+    def pid(self) -> int | None:
+        """The recorder process's pid while it runs (benchmarks count its CPU)."""
+        proc = self._proc
+        return None if proc is None or proc.returncode is not None else proc.pid
 
     def status(self) -> dict[str, Any]:
         return {

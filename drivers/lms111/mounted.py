@@ -11,7 +11,7 @@ both subtract it in their ROS nodes).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from functools import cached_property
 from typing import Protocol
 
@@ -63,6 +63,10 @@ class MountedScan:
     mount: Pose2D
     host_receive_time_s: float
     device_time_us: int
+
+    def __getstate__(self) -> dict[str, object]:
+        """Only the fields, as for `Scan`: the cached views are computed again."""
+        return {f.name: getattr(self, f.name) for f in fields(self)}
 
     @cached_property
     def angles_vehicle_rad(self) -> FloatArray:

@@ -8,7 +8,7 @@ downstream reads `Scan.ranges_m` and `Scan.angles_rad` (sensor frame: start + i 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, fields, replace
 from functools import cached_property
 
 import numpy as np
@@ -125,6 +125,11 @@ class Scan:
     timestamp: ScanTimestamp | None = None
     event: ScanEvent | None = None
     host_receive_time_s: float | None = None
+
+    def __getstate__(self) -> dict[str, object]:
+        """Only the fields: a scan handed to another process (the recorder) carries its
+        raw channels, not the metres and radians computed from them (5x the bytes)."""
+        return {f.name: getattr(self, f.name) for f in fields(self)}
 
     @property
     def scan_frequency_hz(self) -> float:
