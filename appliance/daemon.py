@@ -153,6 +153,7 @@ class Daemon:
                 clock=clock,
             )
             self.recorder.attach(self.io.topics)
+            self.recorder.attach_raw(self.io.raw_sources())
             self.control.on_cycle.append(self.recorder.on_cycle)
             self.control.on_start.append(self.recorder.on_core_reset)
             self.core.request_listeners.append(self.recorder.on_request)

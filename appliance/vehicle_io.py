@@ -79,6 +79,25 @@ class VehicleIO:
     work_slot: ControlSlot = field(default_factory=lambda: ControlSlot(BULK_WORK_BUDGET_S))
     _closers: list[Callable[[], None]] = field(default_factory=list)
 
+    def raw_sources(self) -> list[tuple[str, str, list[Any]]]:
+        """Every link's raw input as ``(name, kind, listeners)``: kind "bytes" (a chunk
+        and its receive time) or "can" (a python-can message and its receive time). The
+        recorder adds itself to each list."""
+        sources: list[tuple[str, str, list[Any]]] = [
+            (f"lms111.{side}", "bytes", client.raw_listeners)
+            for side, client in self.scanners.items()
+        ]
+        if self.boards is not None:
+            sources += [
+                (f"board.{client.board.value}", "bytes", client.raw_listeners)
+                for client in self.boards.all()
+            ]
+        if self.pc104 is not None:
+            sources.append(("can", "can", self.pc104.raw_listeners))
+        if self.gnss is not None:
+            sources.append(("gnss", "bytes", self.gnss.client.raw_listeners))
+        return sources
+
     def close(self) -> None:
         """Release what outlives tasks (pty pairs, temporary directories)."""
         for closer in reversed(self._closers):

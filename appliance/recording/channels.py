@@ -15,6 +15,7 @@ Everything here is pure: messages in, ``(ChannelSpec, bytes)`` out.
 
 from __future__ import annotations
 
+import base64
 import json
 import math
 from collections.abc import Iterator, Mapping
@@ -274,6 +275,40 @@ def encode_request(
         "message": message,
     }
     yield Encoded(REQUEST_CHANNEL, _dumps(payload))
+
+
+RAW_TOPIC_PREFIX = "/raw/"
+RAW_BYTES_CHANNEL_SCHEMA = _schema(
+    "dbw.raw.bytes",
+    "Bytes as read from a link (an LMS111 socket, a board's or the GNSS receiver's serial "
+    "port), with the monotonic time they were read: t_s, b64",
+)
+RAW_CAN_CHANNEL_SCHEMA = _schema(
+    "dbw.raw.can",
+    "A CAN frame as received: t_s (monotonic), id, ext, err, rtr, dlc, data (hex)",
+)
+# (arbitration id, extended, error frame, remote frame, dlc, data)
+CanFrame = tuple[int, bool, bool, bool, int, bytes]
+
+
+def encode_raw(source: str, kind: str, payload: Any, t_s: float) -> Iterator[Encoded]:
+    """A link's raw input for the forensic record (replay works on samples)."""
+    if kind == "can":
+        can_id, ext, err, rtr, dlc, data = payload
+        spec = ChannelSpec(RAW_TOPIC_PREFIX + source, "dbw.raw.can", RAW_CAN_CHANNEL_SCHEMA)
+        body: dict[str, Any] = {
+            "t_s": encode(t_s, float),
+            "id": can_id,
+            "ext": ext,
+            "err": err,
+            "rtr": rtr,
+            "dlc": dlc,
+            "data": bytes(data).hex(),
+        }
+    else:
+        spec = ChannelSpec(RAW_TOPIC_PREFIX + source, "dbw.raw.bytes", RAW_BYTES_CHANNEL_SCHEMA)
+        body = {"t_s": encode(t_s, float), "b64": base64.b64encode(payload).decode("ascii")}
+    yield Encoded(spec, _dumps(body))
 
 
 def encode_reset(now_s: float) -> Iterator[Encoded]:

@@ -29,9 +29,11 @@ from pathlib import Path
 from typing import Any
 
 from appliance.logs import configure_logging, get_logger
+from appliance.recording.candump import CandumpLog
 from appliance.recording.channels import (
     Encoded,
     encode_cycle,
+    encode_raw,
     encode_recorder_counts,
     encode_request,
     encode_reset,
@@ -52,6 +54,7 @@ class RecorderCore:
 
     def __init__(self, files: RecordingFiles) -> None:
         self.files = files
+        self.candump = CandumpLog()
         self.sequence = 0
         self.frames = 0
         self.bad_frames = 0
@@ -74,6 +77,13 @@ class RecorderCore:
         elif kind == "request":
             _, _, now_s, request_kind, name, accepted, message = frame
             messages = encode_request(now_s, request_kind, name, accepted, message)
+        elif kind == "raw":
+            _, _, source, raw_kind, payload, t_s = frame
+            messages = encode_raw(source, raw_kind, payload, t_s)
+            self._write(log_ns, messages)
+            if raw_kind == "can":
+                self.candump.write(payload, log_ns, self.files.current_path)
+            return
         elif kind == "reset":
             messages = encode_reset(frame[2])
         elif kind == "counts":
@@ -151,11 +161,13 @@ def serve(fd_in: int, status_out: Any, params: FileSetParams, clock_offset_ns: i
                 _drain(buffer, core)
             now_ns = time.monotonic_ns() + clock_offset_ns
             core.files.tick(now_ns)
+            core.candump.flush()
             if time.monotonic() >= next_status_s:
                 next_status_s = time.monotonic() + STATUS_INTERVAL_S
                 print(json.dumps(core.status()), file=status_out, flush=True)
     finally:
         core.files.close()
+        core.candump.close()
         print(json.dumps(core.status()), file=status_out, flush=True)
     return 0
 

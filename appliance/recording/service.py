@@ -159,6 +159,34 @@ class Recorder:
 
         return listener
 
+    def attach_raw(self, sources: list[tuple[str, str, list[Any]]]) -> None:
+        """Every link's raw input (`VehicleIO.raw_sources`): bytes as read, CAN frames
+        as received, each with its receive time."""
+        for name, kind, listeners in sources:
+            listeners.append(
+                self._can_listener(name) if kind == "can" else self._bytes_listener(name)
+            )
+
+    def _bytes_listener(self, name: str) -> Callable[[bytes, float], None]:
+        def listener(data: bytes, receive_time_s: float) -> None:
+            self._send("raw", ("raw", self._log_ns(), name, "bytes", bytes(data), receive_time_s))
+
+        return listener
+
+    def _can_listener(self, name: str) -> Callable[[Any, float], None]:
+        def listener(message: Any, receive_time_s: float) -> None:
+            frame = (
+                int(message.arbitration_id),
+                bool(message.is_extended_id),
+                bool(message.is_error_frame),
+                bool(message.is_remote_frame),
+                int(message.dlc),
+                bytes(message.data),
+            )
+            self._send("raw", ("raw", self._log_ns(), name, "can", frame, receive_time_s))
+
+        return listener
+
     def on_cycle(self, now_s: float, inputs: ControlInputs, output: CoreOutput) -> None:
         scan_seqs: dict[str, int | None] = {}
         inline = {}

@@ -119,6 +119,8 @@ class ActuatorClient(Generic[TelemetryT]):
         self.beat_while_reconnecting = beat_while_reconnecting
         self._clock = clock
         self.codec = ActuatorCodec(Role.HOST)
+        # Called with every chunk of bytes as read, and its receive time (the recorder).
+        self.raw_listeners: list[Callable[[bytes, float], None]] = []
         self._serial: Any = None
         self._fd: int | None = None
         self._lost = Wakeup()
@@ -297,6 +299,8 @@ class ActuatorClient(Generic[TelemetryT]):
             self._mark_lost("device disconnected (EOF)")
             return
         now_s = self._clock()
+        for listener in self.raw_listeners:
+            listener(data, now_s)
         codec = self.codec
         codec.receive_data(data)
         while True:

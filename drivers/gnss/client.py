@@ -152,6 +152,8 @@ class GnssClient:
         self.beat_while_reconnecting = beat_while_reconnecting
         self._publish = publish
         self._tap = tap
+        # Called with every chunk of bytes as read, and its receive time (the recorder).
+        self.raw_listeners: list[Callable[[bytes, float], None]] = []
         self._on_link = on_link
         self._clock = clock
         self.receiver = NmeaReceiver()
@@ -317,6 +319,8 @@ class GnssClient:
         self.bytes_received += len(data)
         if self._tap is not None:
             self._tap(data, now_s)
+        for listener in self.raw_listeners:
+            listener(data, now_s)
         receiver = self.receiver
         receiver.receive_data(data)
         while (event := receiver.next_event()) is not None:

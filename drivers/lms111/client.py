@@ -49,6 +49,7 @@ from drivers.lms111.mounted import MountedScan, SensorMount, mount_pose
 from drivers.lms111.replies import DeviceStatus, LmsState, ScanConfig
 from drivers.lms111.scan import Scan
 from drivers.lms111.session import (
+    BytesHook,
     Gate,
     Lms111ConfigError,
     Lms111LinkError,
@@ -152,6 +153,8 @@ class Lms111Client:
         self.topic = topic
         self.dialect = dialect
         self.before_decode = before_decode
+        # Called with every chunk of bytes as read, and its receive time (the recorder).
+        self.raw_listeners: list[BytesHook] = []
         self.settings = StreamSettings(
             endpoint.scan_frequency_hz,
             endpoint.angular_resolution_deg,
@@ -263,6 +266,10 @@ class Lms111Client:
             await asyncio.sleep(min(left_s, 0.25))
         beat()
 
+    def _on_bytes(self, data: bytes, receive_time_s: float) -> None:
+        for listener in self.raw_listeners:
+            listener(data, receive_time_s)
+
     async def _one_session(self, beat: Beat) -> None:
         self._state = "booting" if not self._streamed_ever else "connecting"
         session = await Lms111Session.connect(
@@ -273,6 +280,7 @@ class Lms111Client:
             clock=self._clock,
             request_timeout_s=self.request_timeout_s,
             on_protocol_error=self._on_protocol_error,
+            on_bytes=self._on_bytes,
         )
         self._session = session
         session.before_decode = self.before_decode

@@ -85,6 +85,8 @@ class Pc104Client:
         # Awaited before a batch of received frames is decoded: the runtime keeps that
         # work out of the moments before a control deadline (appliance.timing.ControlSlot).
         self.before_decode: Callable[[], Awaitable[None]] | None = None
+        # Called with every frame received, any sender's, and its receive time (the recorder).
+        self.raw_listeners: list[Callable[[can.Message, float], None]] = []
         self.monitors: dict[int, ReceiveMonitor] = {}
         for spec in protocol.SPECS_BY_ID.values():
             if spec.frame_id in protocol.PC104_IDS:
@@ -289,6 +291,8 @@ class Pc104Client:
     # ---- receiving --------------------------------------------------------------------
     def _on_message(self, message: can.Message, now_s: float) -> None:
         self._received += 1
+        for listener in self.raw_listeners:
+            listener(message, now_s)
         if message.is_error_frame:
             condition = bus_condition(message.arbitration_id, bytes(message.data))
             if condition is not None:
