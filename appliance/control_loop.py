@@ -25,6 +25,7 @@ from appliance.core.inputs import ControlInputs, LinkCounts
 from appliance.gnss_input import GNSS_POSE_TOPIC
 from appliance.logs import get_logger
 from appliance.supervisor import ServiceContext
+from appliance.system_monitor import SYSTEM_HEALTH_TOPIC
 from appliance.timing import FixedRateTicker, SampleWindow
 from appliance.topics import TopicRegistry
 from drivers.topics import Sample
@@ -82,6 +83,7 @@ class TopicInputs:
             service_faults=self.service_faults() if self.service_faults is not None else {},
             gnss=None if gnss is None else gnss.value,
             gnss_seq=None if gnss is None else gnss.seq,
+            system=self._latest(SYSTEM_HEALTH_TOPIC) if SYSTEM_HEALTH_TOPIC in ages else None,
         )
 
 

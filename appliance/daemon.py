@@ -41,6 +41,7 @@ from appliance.loop_monitor import LoopLag, LoopMonitor
 from appliance.recording.service import Recorder
 from appliance.sim.scanner_truth import with_simulated_scanners
 from appliance.supervisor import ServiceContext, ServiceSpec, ServiceState, Supervisor
+from appliance.system_monitor import SYSTEM_HEALTH_TOPIC, SystemMonitor
 from appliance.systemd_notify import SystemdNotifier
 from appliance.vehicle_io import (
     VehicleCommandSink,
@@ -143,6 +144,11 @@ class Daemon:
         self.status_topic: Topic[CoreOutput] = Topic("control.status")
         self.io.topics.register(self.status_topic.name, self.status_topic)
         self.control.on_output.append(self._publish_status)
+        # The PC's own health, probed off the loop; an input the core judges (off: None).
+        self.system_monitor: SystemMonitor | None = None
+        if config.system_monitor.enabled:
+            self.system_monitor = SystemMonitor(config, clock=clock)
+            self.io.topics.register(SYSTEM_HEALTH_TOPIC, self.system_monitor.topic)
         # The flight recorder: every sample, cycle and request, to MCAP (off: None).
         self.recorder: Recorder | None = None
         if record if record is not None else config.recording.enabled:
@@ -183,6 +189,18 @@ class Daemon:
                 run=self._status_service,
                 critical=False,
                 restart=policy,
+            ),
+            *(
+                []
+                if self.system_monitor is None
+                else [
+                    ServiceSpec(
+                        name="system_monitor",
+                        run=self.system_monitor.run,
+                        critical=False,
+                        restart=policy,
+                    )
+                ]
             ),
             *(
                 []
@@ -441,6 +459,7 @@ class Daemon:
             links=link_summary(self.io),
             gnss=None if self.io.gnss is None else self.io.gnss.status(now_s),
             recording=None if self.recorder is None else self.recorder.status(),
+            system=None if self.system_monitor is None else self.system_monitor.status(now_s),
         )
 
 

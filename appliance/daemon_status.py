@@ -70,6 +70,7 @@ def status_document(
     links: Mapping[str, str] | None = None,
     gnss: Mapping[str, Any] | None = None,
     recording: Mapping[str, Any] | None = None,
+    system: Mapping[str, Any] | None = None,
 ) -> dict[str, Any]:
     """What `dbw status` shows: the core's view plus inputs, loop figures, services, and
     (given ``links``, `vehicle_io.link_summary`) one line per device link, and (given
@@ -99,6 +100,8 @@ def status_document(
         doc["links"] = dict(links)
     if gnss is not None:  # the latest epoch, where the vehicle has a receiver
         doc["gnss"] = dict(gnss)
+    if system is not None:  # the PC: load, memory, disk, temperature, clock jumps
+        doc["system"] = dict(system)
     if recording is not None:  # the recorder's state, file, counts and drops
         doc["recording"] = dict(recording)
     if core.calibration_problem:

@@ -66,11 +66,40 @@ def render_status(doc: dict[str, Any]) -> str:
     if event_loop:
         lines.append(event_loop)
     lines += _name_table("links", doc.get("links"))
+    system = _system_line(doc)
+    if system:
+        lines.append(system)
     recording = _recording_line(doc)
     if recording:
         lines.append(recording)
     lines += _name_table("services", doc.get("services"))
     return "\n".join(lines)
+
+
+def _system_line(doc: dict[str, Any]) -> str:
+    """One line: the PC's load, memory, disk and temperature, and any probe problem."""
+    system = as_dict(doc.get("system"))
+    if not system:
+        return ""
+    parts = []
+    load, cpus = _finite(system.get("load_1m")), system.get("cpu_count")
+    if load is not None:
+        parts.append(f"load {load:.2f}" + (f"/{cpus} CPUs" if isinstance(cpus, int) else ""))
+    memory = _finite(system.get("memory_available_mb"))
+    if memory is not None:
+        parts.append(f"{memory:.0f} MB memory free")
+    disk = _finite(system.get("disk_free_mb"))
+    if disk is not None:
+        parts.append(f"{disk / 1e3:.1f} GB disk free")
+    temperature = _finite(system.get("temperature_c"))
+    parts.append(f"{temperature:.0f} degC" if temperature is not None else "no temperature sensor")
+    jumps = system.get("clock_jumps")
+    if isinstance(jumps, int) and jumps:
+        parts.append(f"{jumps} wall-clock jumps")
+    problem = system.get("problem")
+    if isinstance(problem, str) and problem:
+        parts.append(clean_text(problem))
+    return "system: " + ", ".join(parts)
 
 
 def _recording_line(doc: dict[str, Any]) -> str:

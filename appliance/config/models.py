@@ -432,6 +432,37 @@ class Recording(_Model):
         return self
 
 
+class SystemMonitor(_Model):
+    """The PC's own health (Stanley et al.'s memory/storage and system monitors): load,
+    memory, free disk, temperature where readable, wall-clock jumps; probed off the
+    control loop. Below the stop levels it is a fault the safety layer acts on."""
+
+    enabled: bool = True
+    period_s: float = Field(1.0, ge=0.1, le=60.0)
+    # A probe still running after this is logged as stuck; its sample then ages, and past
+    # max_age_s the monitor counts as not reporting: a fault while engaged.
+    probe_timeout_s: float = Field(2.0, gt=0.0, le=60.0)
+    max_age_s: float = Field(5.0, gt=0.0, le=600.0)
+    disk_path: str | None = None  # None: paths.state_dir (logs, recordings, calibration)
+    disk_warn_free_mb: float = Field(1024.0, ge=0.0)
+    disk_stop_free_mb: float = Field(256.0, ge=0.0)
+    temperature_warn_c: float = Field(80.0, ge=0.0, le=150.0)
+    temperature_max_c: float = Field(95.0, ge=0.0, le=150.0)
+    memory_min_available_mb: float = Field(128.0, ge=0.0)
+    # A wall-clock step bigger than this between two probes is logged (wall_clock_jump).
+    clock_jump_warn_s: float = Field(0.5, gt=0.0)
+
+    @model_validator(mode="after")
+    def _levels(self) -> Self:
+        if self.disk_stop_free_mb > self.disk_warn_free_mb:
+            raise ValueError("disk_stop_free_mb must not be above disk_warn_free_mb")
+        if self.temperature_warn_c > self.temperature_max_c:
+            raise ValueError("temperature_warn_c must not be above temperature_max_c")
+        if self.max_age_s < 2 * self.period_s:
+            raise ValueError("max_age_s must be at least two periods (period_s)")
+        return self
+
+
 class Simulation(_Model):
     """The built-in simulated vehicle: the world and the twins of every device."""
 
@@ -476,6 +507,7 @@ class VehicleConfig(_Model):
     supervision: Supervision = Supervision()
     paths: Paths = Paths()
     recording: Recording = Recording()
+    system_monitor: SystemMonitor = SystemMonitor()
     simulation: Simulation = Simulation(enabled=False)
 
     @model_validator(mode="after")

@@ -29,6 +29,7 @@ from safety.limits import LimitParams
 from safety.override import OperatorOverride, PedalOverrideParams, SteeringOverrideParams
 from safety.safe_state import STOP_DISTANCE_MARGIN, SafeBrakeParams, SpeedRampParams
 from safety.staleness import DEFAULT_CRITICAL_INPUTS, StalenessGuard
+from safety.system_health import SystemHealthParams
 
 # What is left of a calibrated scanner's systematic error: the fit's own σ is about a
 # millimetre and a hundredth of a degree (docs/calibration.md), the range scale error
@@ -231,3 +232,16 @@ def dock_source_params(config: VehicleConfig) -> DockSourceParams:
         max_heading_rad=math.radians(d.zone_max_heading_deg),
     )
     return DockSourceParams(docking=docking, localizer=localizer, zone=zone)
+
+
+def system_health_params(config: VehicleConfig) -> SystemHealthParams | None:
+    """The PC-health rule's thresholds; None where the vehicle file turns the monitor off."""
+    monitor = config.system_monitor
+    if not monitor.enabled:
+        return None
+    return SystemHealthParams(
+        max_age_s=monitor.max_age_s,
+        disk_stop_free_mb=monitor.disk_stop_free_mb,
+        temperature_max_c=monitor.temperature_max_c,
+        memory_min_available_mb=monitor.memory_min_available_mb,
+    )

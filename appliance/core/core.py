@@ -81,6 +81,7 @@ from drivers.pc104.messages import ControlSource
 from safety.arbitration import OperatorInput
 from safety.consistency import CounterDeltas, SteeringTrackingMonitor
 from safety.faults import FaultMonitor
+from safety.system_health import system_faults
 
 BENCH_REQUESTS = (
     "engage",
@@ -105,6 +106,7 @@ _NOT_READY = EngageConditions(
 )
 
 
+SYSTEM_HEALTH_INPUT = "system.health"
 # (kind "request" or "select_route", name, now_s or None, accepted, message)
 RequestListener = Callable[[str, str, float | None, bool, str], None]
 
@@ -139,6 +141,7 @@ class ControlCore:
             config, calibration, self.pattern, self.mode_params.max_speed_mps
         )
         self.panel = PanelDecoder()
+        self.system_health = parts.system_health_params(config)
         # Told of every request and route selection, with the answer (the recorder).
         self.request_listeners: list[RequestListener] = []
         self.reset()
@@ -510,6 +513,19 @@ class ControlCore:
             )
         if steering_engaged and not wish.ready:
             active["autopilot_not_ready"] = f"autopilot source: {wish.reason or 'not ready'}"
+        if self.system_health is not None and SYSTEM_HEALTH_INPUT in inputs.ages_s:
+            # Judged where the daemon monitors the PC (it registers the input); a monitor
+            # that stopped reporting is a fault like any stale input.
+            system = inputs.system
+            active.update(
+                system_faults(
+                    self.system_health,
+                    inputs.ages_s[SYSTEM_HEALTH_INPUT],
+                    None if system is None else system.disk_free_mb,
+                    None if system is None else system.temperature_c,
+                    None if system is None else system.memory_available_mb,
+                )
+            )
         return active
 
     def _pedal_problems(self, m: Measurements, wish: AutopilotWish) -> dict[str, str]:

@@ -20,6 +20,7 @@ from drivers.actuators.messages import (
 )
 from drivers.lms111.mounted import MountedScan
 from drivers.pc104.messages import Pc104Status
+from drivers.system.probes import SystemHealth
 
 
 @dataclass(frozen=True)
@@ -47,3 +48,5 @@ class ControlInputs:
     # every epoch (the route's transform) takes each new one once.
     gnss: GnssPose | GnssNoFix | None = None
     gnss_seq: int | None = None
+    # The PC's own health (appliance/system_monitor.py), where the daemon monitors it.
+    system: SystemHealth | None = None

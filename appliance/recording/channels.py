@@ -43,6 +43,7 @@ from drivers.pc104.messages import (
     Pc104Status,
     WheelAngles,
 )
+from drivers.system.probes import SystemHealth
 
 CYCLE_TOPIC = "/dbw/cycle"
 REQUEST_TOPIC = "/dbw/request"
@@ -69,6 +70,7 @@ SAMPLE_TYPES: dict[str, type] = {
         MountedScan,
         GnssPose,
         GnssNoFix,
+        SystemHealth,
     )
 }
 # A topic whose values are of no known type is still recorded, as free JSON.

@@ -41,7 +41,10 @@ _NON_FINITE = {"inf": math.inf, "-inf": -math.inf, "nan": math.nan}
 # Arrays in a recording are scanner channels and small vectors; this bounds what a
 # damaged or hostile file can make the reader allocate.
 MAX_ARRAY_BYTES = 16 * 1024 * 1024
-_DTYPES = frozenset({"<u1", "<u2", "<u4", "<i1", "<i2", "<i4", "<i8", "<f4", "<f8", "|b1", "|u1"})
+# One-byte types have no byte order: numpy writes them "|u1", "|i1", "|b1".
+_DTYPES = frozenset(
+    {"<u1", "<u2", "<u4", "<i1", "<i2", "<i4", "<i8", "<f4", "<f8", "|b1", "|u1", "|i1"}
+)
 
 
 class CodecError(ValueError):

@@ -11,6 +11,7 @@ finished, and every problem, each in one line.
 from __future__ import annotations
 
 import json
+import struct
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -19,9 +20,24 @@ from typing import Any
 from mcap.exceptions import McapError
 from mcap.records import Channel, Chunk, Footer, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader, breakup_chunk
+from zstandard import ZstdError
 
 # A chunk is a megabyte or so; a length beyond this is damage, not data.
 RECORD_SIZE_LIMIT_BYTES = 256 * 1024 * 1024
+# What mcap lets through from a file that ends inside a record (struct.error: a length
+# or a number cut short) or whose record is damaged (OverflowError: a length past what
+# a read can be asked for).
+_RECORD_ERRORS = (
+    McapError,
+    ValueError,
+    EOFError,
+    OSError,
+    MemoryError,
+    OverflowError,
+    struct.error,
+)
+# ... and from a damaged chunk's data (ZstdError: the compressed data does not decompress).
+_CHUNK_ERRORS = (*_RECORD_ERRORS, ZstdError)
 
 
 @dataclass(frozen=True)
@@ -90,7 +106,7 @@ class RecordingReader:
                     record = next(records)
                 except StopIteration:
                     break
-                except (McapError, ValueError, EOFError, OSError, MemoryError) as exc:
+                except _RECORD_ERRORS as exc:
                     report.truncated = True
                     report.problems.append(
                         f"ends after chunk {report.chunks}: {_describe(exc)}; "
@@ -100,7 +116,7 @@ class RecordingReader:
                 if isinstance(record, Chunk):
                     try:
                         inner = breakup_chunk(record, validate_crc=True)
-                    except (McapError, ValueError, OSError) as exc:
+                    except _CHUNK_ERRORS as exc:
                         report.bad_chunks += 1
                         report.problems.append(
                             f"chunk {report.chunks + report.bad_chunks} skipped: {_describe(exc)}"

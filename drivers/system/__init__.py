@@ -1,0 +1,1 @@
+"""The vehicle PC itself as a device: load, memory, disk, temperature, clocks."""
