@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import asyncio
 import base64
+import contextlib
 import errno
 import hashlib
 import ipaddress
@@ -43,6 +44,10 @@ log = get_logger("operator_page")
 BEAT_PERIOD_S: Final = 1.0
 READ_CHUNK_BYTES: Final = 4096
 CLOSE_CLIENTS_TIMEOUT_S: Final = 0.3
+# A connection over the limit gets this long to send its request before its 503, and at
+# most this many times the limit wait so; beyond that they are dropped unanswered.
+BUSY_READ_S: Final = 1.0
+BUSY_BACKLOG_FACTOR: Final = 4
 JSON_TYPE: Final = "application/json"
 _PERMANENT_BIND_ERRNOS: Final = frozenset({errno.EACCES, errno.EPERM, errno.EADDRNOTAVAIL})
 _INLINE: Final = re.compile(rb"<(script|style)>(.*?)</\1>", re.DOTALL)
@@ -113,6 +118,18 @@ def _finite(value: object) -> object:
     return value
 
 
+async def read_request(
+    reader: asyncio.StreamReader, parser: RequestReader
+) -> Request | ConnectionClosed:
+    """Feed the parser from the stream until it has a request; raises HttpError."""
+    while True:
+        event = parser.next_event()
+        if event is not NEED_DATA:
+            assert isinstance(event, Request | ConnectionClosed)
+            return event
+        parser.receive_data(await reader.read(READ_CHUNK_BYTES))
+
+
 class OperatorPage:
     """The page and its two JSON documents, served by the daemon as a supervised service."""
 
@@ -150,6 +167,7 @@ class OperatorPage:
         self.page = load_page() if page is None else page
         self.csp = page_csp(self.page)
         self.refused = 0  # connections turned away with 503
+        self._refusing = 0
         self._bound_port: int | None = None
         self._clients: dict[asyncio.Task[Any], asyncio.StreamWriter] = {}
         self._last_failure = ""
@@ -204,12 +222,7 @@ class OperatorPage:
         self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter
     ) -> None:
         if len(self._clients) >= self.max_connections:
-            self.refused += 1
-            if self.refused == 1 or self.refused % 100 == 0:
-                log.warning("operator_page_busy", connections=len(self._clients))
-            busy = HttpError(HTTPStatus.SERVICE_UNAVAILABLE, "too many connections, try again")
-            writer.write(error_response(busy))  # small: fits the socket buffer, never waits
-            writer.close()
+            await self._refuse_busy(reader, writer)
             return
         task = asyncio.current_task()
         assert task is not None
@@ -238,20 +251,36 @@ class OperatorPage:
             else:
                 writer.transport.abort()  # slow, gone or hostile: drop whatever is queued
 
+    async def _refuse_busy(
+        self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter
+    ) -> None:
+        """503, after taking the request off the wire (closing on unread bytes would reset
+        the connection before the client read the answer); briefly, and only for a few."""
+        self.refused += 1
+        if self.refused == 1 or self.refused % 100 == 0:
+            log.warning("operator_page_busy", connections=len(self._clients), refused=self.refused)
+        if self._refusing >= self.max_connections * BUSY_BACKLOG_FACTOR:
+            writer.transport.abort()  # a flood: no answer at all
+            return
+        self._refusing += 1
+        try:
+            with contextlib.suppress(TimeoutError, OSError):
+                async with asyncio.timeout(BUSY_READ_S):
+                    await read_request(reader, RequestReader())
+            busy = HttpError(HTTPStatus.SERVICE_UNAVAILABLE, "too many connections, try again")
+            writer.write(error_response(busy))  # small: fits the socket buffer, never waits
+            writer.close()
+        finally:
+            self._refusing -= 1
+
     async def _read_and_answer(self, reader: asyncio.StreamReader) -> bytes:
-        parser = RequestReader()
-        while True:
-            try:
-                event = parser.next_event()
-            except HttpError as error:
-                return error_response(error)
-            if event is NEED_DATA:
-                parser.receive_data(await reader.read(READ_CHUNK_BYTES))
-                continue
-            if isinstance(event, ConnectionClosed):
-                return b""
-            assert isinstance(event, Request)
-            return self.respond(event)
+        try:
+            event = await read_request(reader, RequestReader())
+        except HttpError as error:
+            return error_response(error)
+        if isinstance(event, ConnectionClosed):
+            return b""
+        return self.respond(event)
 
     def respond(self, request: Request) -> bytes:
         """The answer to one well-formed request (pure but for the two sources)."""

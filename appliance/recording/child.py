@@ -47,6 +47,7 @@ FRAME_HEADER = struct.Struct("<I")
 MAX_FRAME_BYTES = 64 * 1024 * 1024
 STATUS_INTERVAL_S = 1.0
 READ_SIZE = 1 << 18
+MAX_BAD_FRAMES_LOGGED = 20
 
 
 class RecorderCore:
@@ -61,7 +62,21 @@ class RecorderCore:
         self.upstream_dropped: dict[str, int] = {}
 
     def handle(self, frame: tuple[Any, ...]) -> None:
+        """One frame; one that cannot be encoded is counted and logged, never fatal (the
+        rest of the recording is worth more than one message)."""
         self.frames += 1
+        try:
+            self._handle(frame)
+        except Exception as exc:
+            self.bad_frames += 1
+            if self.bad_frames <= MAX_BAD_FRAMES_LOGGED:
+                log.error(
+                    "recording_frame_not_encoded",
+                    kind=str(frame[0] if frame else "")[:40],
+                    error=f"{type(exc).__name__}: {str(exc)[:200]}",
+                )
+
+    def _handle(self, frame: tuple[Any, ...]) -> None:
         kind = frame[0]
         if kind == "meta":
             self.files.metadata.update(frame[1])

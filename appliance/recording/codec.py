@@ -185,6 +185,8 @@ def _encode_tuple(value: Any, args: tuple[Any, ...]) -> JsonValue:
 def _encode_array(value: Any) -> JsonValue:
     array = np.asarray(value)
     little = array.astype(array.dtype.newbyteorder("<"), copy=False)
+    if little.dtype.str not in _DTYPES:  # what decode would refuse: say so now, not at replay
+        raise CodecError(f"array dtype {little.dtype.str!r} is not one a recording holds")
     return {
         "dtype": little.dtype.str,
         "shape": list(little.shape),

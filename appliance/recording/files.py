@@ -215,7 +215,9 @@ class RecordingFiles:
         directory = self.params.directory
         directory.mkdir(parents=True, exist_ok=True)
         stamp = self._file_stamp()
-        for index in range(1000):
+        # The session's file count, never a gap's index: a name the quota freed is not
+        # given again, so names sort in the order the files were written.
+        for index in range(self.counts.files_opened, self.counts.files_opened + 1000):
             path = directory / f"{self.params.prefix}-{stamp}-{index:03d}{SUFFIX}"
             if not path.exists():
                 break
@@ -272,6 +274,11 @@ class RecordingFiles:
     def _check_disk(self, log_time_ns: int) -> None:
         self._next_disk_check_ns = log_time_ns + DISK_CHECK_INTERVAL_NS
         directory = self.params.directory
+        file = self._file
+        if file is not None and not file.path.exists():
+            # Deleted under us (or its directory): Linux takes writes to the unlinked
+            # file without an error, so they would be lost without a word.
+            self._fail(log_time_ns, FileNotFoundError(f"{file.path} was removed"))
         try:
             probe = directory if directory.exists() else _existing_parent(directory)
             free = self._free_bytes(probe)

@@ -446,3 +446,17 @@ def test_a_field_of_the_wrong_type_or_an_unknown_union_arm_is_a_codec_error() ->
         decode([1, 2, 3], tuple[int, int])
     with pytest.raises(CodecError, match="expected a number"):
         decode(True, float)  # a boolean is not a number here, though Python says it is
+
+
+@pytest.mark.parametrize(
+    "array",
+    [
+        np.zeros(3, dtype=np.uint64),
+        np.zeros(3, dtype=np.float16),
+        np.zeros(3, dtype=np.complex128),
+        np.array([object(), object()], dtype=object),
+    ],
+)
+def test_an_array_replay_could_not_read_is_refused_when_written(array: np.ndarray) -> None:
+    with pytest.raises(CodecError, match="dtype"):
+        encode(array, np.ndarray)

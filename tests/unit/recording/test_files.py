@@ -401,3 +401,31 @@ def test_after_a_flush_an_unclosed_file_reads_up_to_it(tmp_path: Path) -> None:
     assert messages == written
     files.close()
     assert _read_finished(path) == written
+
+
+def test_names_a_quota_freed_are_not_given_again(tmp_path: Path) -> None:
+    """One wall-clock stamp for every file: the names still sort in the order written."""
+    params = _params(tmp_path, split_duration_ns=1 * S, quota_bytes=3000)  # about two files
+    files = _files(params)
+    _write(files, [i * 500 * MS for i in range(8)])  # two messages a file: four files
+    files.close()
+    names = [p.name for p in _mcaps(tmp_path)]
+    # the last two, by their place in the session (the fourth was once named -000)
+    assert names == ["dbw-20240301T120000Z-002.mcap", "dbw-20240301T120000Z-003.mcap"]
+
+
+def test_a_file_deleted_while_open_is_a_write_error_then_a_new_file(tmp_path: Path) -> None:
+    files = _files(_params(tmp_path))
+    _write(files, [0, 10 * MS])
+    first = files.current_path
+    assert first is not None
+    first.unlink()  # Linux keeps taking writes to the unlinked file: they must not vanish
+    assert not files.write(SPEC_A, DISK_CHECK_INTERVAL_NS, b"{}", 2)
+    assert files.state == "failed"
+    assert files.counts.dropped == {"write_error": 1}
+    later = DISK_CHECK_INTERVAL_NS + RETRY_INTERVAL_NS
+    assert files.write(SPEC_A, later, b'{"k": 3}', 3)
+    files.close()
+    (path,) = _mcaps(tmp_path)
+    assert path != first
+    assert [data for _, _, data in _read_finished(path)] == [b'{"k": 3}']

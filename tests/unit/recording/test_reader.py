@@ -240,8 +240,9 @@ def test_session_files_are_the_earlier_files_of_the_same_session(tmp_path: Path)
     _write_recording(tmp_path, "b", ["T02", "T04"], messages=200, split_duration_ns=1 * S)
     _write_recording(tmp_path, "", ["T06"])  # no session: an older recorder's file
     (tmp_path / "dbw-T00-000.mcap").write_bytes(b"junk")  # a damaged file is not one of them
-    a1, a2, a3 = (tmp_path / f"dbw-T0{i}-000.mcap" for i in (1, 3, 5))
-    b1, b2 = (tmp_path / f"dbw-T0{i}-000.mcap" for i in (2, 4))
+    # a file's index is its place in the session (names sort in the order written)
+    a1, a2, a3 = (tmp_path / f"dbw-T0{i}-{n:03d}.mcap" for n, i in enumerate((1, 3, 5)))
+    b1, b2 = (tmp_path / f"dbw-T0{i}-{n:03d}.mcap" for n, i in enumerate((2, 4)))
     assert session_files(a3) == [a1, a2, a3]
     assert session_files(a2) == [a1, a2]
     assert session_files(a1) == [a1]
