@@ -28,6 +28,7 @@ from appliance.core.inputs import ControlInputs
 from appliance.core.output import CoreOutput, Note
 from appliance.localization.gnss_pose import GnssNoFix, GnssPose
 from appliance.recording.codec import encode
+from appliance.recording.fastcodec import encode_fast
 from appliance.recording.files import ChannelSpec
 from drivers.actuators.messages import (
     BrakeTelemetry,
@@ -186,7 +187,7 @@ def encode_sample(
     """A topic sample for replay, and a scan also as a foxglove.LaserScan to look at."""
     type_name = sample_type_name(value)
     declared = SAMPLE_TYPES.get(type_name, Any)
-    payload = {"seq": seq, "stamp_s": encode(stamp_s, float), "value": encode(value, declared)}
+    payload = {"seq": seq, "stamp_s": encode(stamp_s, float), "value": encode_fast(value, declared)}
     yield Encoded(sample_channel(topic, type_name), _dumps(payload))
     if isinstance(value, MountedScan):
         yield Encoded(
@@ -226,9 +227,9 @@ def encode_cycle(
     PC104 is given as a foxglove.PoseInFrame."""
     payload = {
         "now_s": encode(now_s, float),
-        "inputs": encode(inputs, ControlInputs),
+        "inputs": encode_fast(inputs, ControlInputs),
         "scan_seqs": dict(scan_seqs),
-        "output": encode(output, CoreOutput),
+        "output": encode_fast(output, CoreOutput),
     }
     yield Encoded(CYCLE_CHANNEL, _dumps(payload))
     for note in output.notes:

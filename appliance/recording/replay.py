@@ -35,7 +35,9 @@ from appliance.recording.channels import (
     RESET_TOPIC,
     SAMPLE_TOPIC_PREFIX,
 )
-from appliance.recording.codec import CodecError, decode, encode
+from appliance.recording.codec import CodecError
+from appliance.recording.fastcodec import decode_fast as decode
+from appliance.recording.fastcodec import encode_fast
 from appliance.recording.reader import RecordedMessage
 from drivers.lms111.mounted import MountedScan
 
@@ -226,7 +228,7 @@ class Replayer:
         self.result.cycles += 1
         if self.on_cycle is not None:
             self.on_cycle(message.log_time_ns, now_s, inputs, output)
-        replayed = encode(output, CoreOutput)
+        replayed = encode_fast(output, CoreOutput)
         recorded = data.get("output")
         if json.dumps(replayed, sort_keys=True) == json.dumps(recorded, sort_keys=True):
             return
