@@ -287,22 +287,24 @@ class Recorder:
     def child_params_dir(self) -> str:
         return str(recording_directory(self.config))
 
-    async def close(self, timeout_s: float = STOP_GRACE_S) -> None:
+    async def close(self, timeout_s: float = STOP_GRACE_S) -> bool:
         """Stop recording: end of file to the child, and wait (bounded) until it has
-        finished its file, so the daemon's last file ends with its summary."""
+        finished its file, so the daemon's last file ends with its summary. False if it
+        had not finished by then (it goes on finishing by itself)."""
         writer, self._writer = self._writer, None
         self._started_once = True  # from now on, whatever is sent is dropped and counted
-        if writer is None:
-            return
-        with contextlib.suppress(OSError, RuntimeError):
-            writer.close()
+        if writer is not None:
+            with contextlib.suppress(OSError, RuntimeError):
+                writer.close()
         proc = self._proc
         if proc is None or proc.returncode is not None:
-            return
+            return True
         try:
             await asyncio.wait_for(asyncio.shield(proc.wait()), timeout_s)
         except TimeoutError:
             log.warning("recorder_slow_to_finish", pid=proc.pid, waited_s=timeout_s)
+            return False
+        return True
 
 
 def _frame(frame: tuple[Any, ...]) -> bytes:

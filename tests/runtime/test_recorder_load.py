@@ -120,7 +120,8 @@ async def _record(directory: Path, max_backlog_mb: float) -> tuple[Counter[str],
                 break
             await asyncio.sleep(0.01)
         generated = await _drive(recorder, topics)
-        await recorder.close()
+        # The recorder's process finishes its file (a loaded machine takes its time).
+        assert await recorder.close(timeout_s=60.0), "the recorder did not finish its file"
     finally:
         service.cancel()
         with_result: Any = await asyncio.gather(service, return_exceptions=True)
