@@ -47,15 +47,17 @@ async def _wait(predicate: Callable[[], bool], timeout_s: float, what: str) -> N
         await asyncio.sleep(0.02)
 
 
-async def _press_until_accepted(api: DaemonControlApi, name: str) -> None:
-    started = time.monotonic()
-    while True:
-        accepted, message = api.request(name)
-        if accepted:
-            return
-        if time.monotonic() - started > LIVENESS_TIMEOUT_S:
-            pytest.fail(f"{name}: refused for {LIVENESS_TIMEOUT_S} s: {message}")
-        await asyncio.sleep(0.1)
+async def _engage_and_step_up(daemon: Daemon, api: DaemonControlApi) -> bool:
+    """engage, +, + (speed hold at one step); False if the vehicle left it meanwhile."""
+    await _wait(lambda: daemon.core.state.mode is Mode.READY, LIVENESS_TIMEOUT_S, "READY")
+    await _wait(lambda: not daemon.core.engage_blockers(), LIVENESS_TIMEOUT_S, "engageable")
+    for name in ("engage", "speed_plus", "speed_plus"):
+        accepted, _ = api.request(name)
+        if not accepted:
+            api.request("disengage")  # the manual override acknowledges any fault
+            return False
+        await asyncio.sleep(0.2)
+    return daemon.core.state.mode is Mode.SPEED_HOLD
 
 
 @pytest.fixture(scope="module")
@@ -84,15 +86,16 @@ def recording_dir() -> Iterator[Path]:
                 LIVENESS_TIMEOUT_S,
                 "recorder running",
             )
-            # A loaded machine may refuse a press (an input late for a moment): press
-            # again, as an operator would; the refusals are recorded and replayed too.
-            await _press_until_accepted(api, "engage")
-            await asyncio.sleep(0.3)
-            for _ in range(2):
-                await _press_until_accepted(api, "speed_plus")
-                await asyncio.sleep(0.3)
+            # A loaded machine may drop the vehicle out of ENGAGED (an input late for a
+            # moment): then the operator acknowledges and does it again. The refusals
+            # are recorded and replayed like everything else.
+            for _ in range(3):
+                if await _engage_and_step_up(daemon, api):
+                    break
+            else:
+                pytest.fail("could not engage and step the speed up in three attempts")
             await asyncio.sleep(1.0)
-            await _press_until_accepted(api, "disengage")
+            api.request("disengage")
             await asyncio.sleep(0.5)
         finally:
             daemon.request_stop("test over")
@@ -121,7 +124,7 @@ def test_the_file_is_complete_with_every_channel_replay_needs(recording_dir: Pat
     assert report.finished and not report.problems
     for topic in (CYCLE_TOPIC, REQUEST_TOPIC, RESET_TOPIC, "/dbw/topic/scan.left", "/log"):
         assert report.per_topic.get(topic, 0) > 0, (topic, report.per_topic)
-    assert report.per_topic[REQUEST_TOPIC] >= 4  # engage, + +, disengage (and any refusals)
+    assert report.per_topic[REQUEST_TOPIC] >= 4  # engage, + +, disengage (and any retries)
     assert report.metadata["dbw"]["vehicle"] == "sim"
     assert "toml" in report.metadata["dbw.config"]
 
@@ -165,8 +168,12 @@ def test_a_changed_rule_is_reported_where_it_first_acts(recording_dir: Path) -> 
         for m in RecordingReader(path).messages()
         if m.topic == REQUEST_TOPIC
     ]
-    pluses = [ns for ns, data in requests if data["name"] == "speed_plus" and data["accepted"]]
-    assert len(pluses) == 2
+    step = isolated_sim_config().engagement.speed_step_mps  # the recorded vehicle's
+    stepped = f"set speed {step:.2f} m/s"
+    # the first + that stepped the speed (the one before it only locked the speed, 0 m/s)
+    first_step_ns = next(
+        ns for ns, data in requests if data["name"] == "speed_plus" and data["message"] == stepped
+    )
 
     def change(replayer: Replayer) -> None:
         core = replayer.core
@@ -178,9 +185,54 @@ def test_a_changed_rule_is_reported_where_it_first_acts(recording_dir: Path) -> 
     assert result.divergent_cycles > 0
     first = result.divergences[0]
     assert first.topic == REQUEST_TOPIC
-    assert first.log_time_ns == pluses[1]
-    step = isolated_sim_config().engagement.speed_step_mps  # the recorded vehicle's
-    assert first.recorded == [True, f"set speed {step:.2f} m/s"]
+    assert first.log_time_ns == first_step_ns
+    assert first.recorded == [True, stepped]
     assert first.replayed == [True, f"set speed {2 * step:.2f} m/s"]
     cycle_divergences = [d for d in result.divergences if d.topic == CYCLE_TOPIC]
-    assert cycle_divergences and cycle_divergences[0].log_time_ns > pluses[1]
+    assert cycle_divergences and cycle_divergences[0].log_time_ns > first_step_ns
+
+
+def test_a_file_cut_short_is_checked_and_replayed_up_to_its_last_whole_chunk(
+    recording_dir: Path, tmp_path: Path
+) -> None:
+    whole = _files(recording_dir)[-1]
+    cut = tmp_path / whole.name
+    data = whole.read_bytes()
+    cut.write_bytes(data[: len(data) * 2 // 3])  # a power cut two thirds of the way in
+    check = CliRunner().invoke(record_group, ["check", str(cut)])
+    assert check.exit_code == 1, check.output
+    assert "cut short" in check.output and "ends after chunk" in check.output
+    replayed = CliRunner().invoke(replay_command, [str(cut), "--compare"])
+    assert replayed.exit_code == 0, replayed.output  # what is there still matches
+    assert "outputs match the recording exactly" in replayed.output
+    assert "problem: " in replayed.output  # and it says the file ends early
+
+
+def test_dump_prints_the_inputs_the_core_saw_at_a_moment(recording_dir: Path) -> None:
+    import json
+
+    path = _files(recording_dir)[-1]
+    messages = RecordingReader(path).read_all()
+    engaged_ns = next(
+        m.log_time_ns
+        for m in messages
+        if m.topic == REQUEST_TOPIC and m.json()["name"] == "engage" and m.json()["accepted"]
+    )
+    at_s = (engaged_ns - messages[0].log_time_ns) / 1e9 + 0.1
+    result = CliRunner().invoke(replay_command, [str(path), "--until", f"{at_s}", "--dump"])
+    assert result.exit_code == 0, result.output
+    dumped = json.loads(result.output)
+    assert at_s <= dumped["at_s"] < at_s + 0.1
+    assert dumped["inputs"]["steering"]["pot_raw_counts"] > 0
+    assert set(dumped["inputs"]["scans"]) == {"left", "right"}
+    assert dumped["output"]["mode"] in {"engaged", "speed_hold", "error"}
+
+
+def test_replay_of_something_that_is_not_a_recording_is_refused_in_one_line(
+    tmp_path: Path,
+) -> None:
+    junk = tmp_path / "junk.mcap"
+    junk.write_bytes(b"not an mcap file at all")
+    result = CliRunner().invoke(replay_command, [str(junk)])
+    assert result.exit_code == 2
+    assert result.output.count("\n") == 1 and "error:" in result.output
