@@ -36,6 +36,7 @@ from appliance.core.autopilot import AutopilotSource
 from appliance.core.core import ControlCore
 from appliance.core.output import CoreOutput
 from appliance.daemon_status import service_summary, status_document, status_line
+from appliance.live_view import LiveView
 from appliance.logs import get_logger
 from appliance.loop_monitor import LoopLag, LoopMonitor
 from appliance.recording.service import Recorder
@@ -149,6 +150,12 @@ class Daemon:
         if config.system_monitor.enabled:
             self.system_monitor = SystemMonitor(config, clock=clock)
             self.io.topics.register(SYSTEM_HEALTH_TOPIC, self.system_monitor.topic)
+        # The Foxglove live view, on its own threads; fed only while someone watches.
+        self.live_view: LiveView | None = None
+        if config.live_view.enabled:
+            self.live_view = LiveView(config, time.time_ns() - time.monotonic_ns())
+            self.live_view.attach(self.io.topics)
+            self.control.on_cycle.append(self.live_view.on_cycle)
         # The flight recorder: every sample, cycle and request, to MCAP (off: None).
         self.recorder: Recorder | None = None
         if record if record is not None else config.recording.enabled:
@@ -197,6 +204,18 @@ class Daemon:
                     ServiceSpec(
                         name="system_monitor",
                         run=self.system_monitor.run,
+                        critical=False,
+                        restart=policy,
+                    )
+                ]
+            ),
+            *(
+                []
+                if self.live_view is None
+                else [
+                    ServiceSpec(
+                        name="live_view",
+                        run=self.live_view.run,
                         critical=False,
                         restart=policy,
                     )

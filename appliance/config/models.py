@@ -463,6 +463,18 @@ class SystemMonitor(_Model):
         return self
 
 
+class LiveView(_Model):
+    """The Foxglove WebSocket live view (appliance/live_view.py): off by default; on the
+    loopback address unless allow_non_loopback says this vehicle serves other machines."""
+
+    enabled: bool = False
+    host: str = Field("127.0.0.1", min_length=1)
+    port: Port = 8765
+    allow_non_loopback: bool = False
+    # Per topic, while someone watches: bounds what the live view costs the event loop.
+    max_rate_hz: float = Field(10.0, gt=0.0, le=100.0)
+
+
 class Simulation(_Model):
     """The built-in simulated vehicle: the world and the twins of every device."""
 
@@ -508,6 +520,7 @@ class VehicleConfig(_Model):
     paths: Paths = Paths()
     recording: Recording = Recording()
     system_monitor: SystemMonitor = SystemMonitor()
+    live_view: LiveView = LiveView()
     simulation: Simulation = Simulation(enabled=False)
 
     @model_validator(mode="after")
