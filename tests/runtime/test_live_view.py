@@ -162,7 +162,7 @@ def test_foxglove_sees_the_channels_and_the_mode_no_faster_than_the_rate() -> No
                 for i in range(100):  # one second of cycles at 100 Hz
                     now_s = 10.0 + i * 0.01
                     view.on_cycle(now_s, inputs, core.step(inputs, now_s))
-                messages = []
+                messages: list[dict[str, Any]] = []
                 deadline = time.monotonic() + 5.0
                 while len(messages) < view.published and time.monotonic() < deadline:
                     opcode, data = await asyncio.to_thread(client.frame)
