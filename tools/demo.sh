@@ -8,7 +8,7 @@ BIN=${BIN:-.venv/bin}
 SECONDS_TOTAL=${DEMO_SECONDS:-25}
 say() { printf '\n\033[1m== demo: %s ==\033[0m\n' "$*"; }
 
-"$BIN/dbw" --log-format console run --config sim --duration-s "$SECONDS_TOTAL" &
+"$BIN/dbw" --log-format console run --config sim --duration-s "$SECONDS_TOTAL" --record &
 daemon=$!
 trap 'kill "$daemon" 2>/dev/null || true' EXIT
 
@@ -29,3 +29,8 @@ say "back in READY"; "$BIN/dbw" status || true
 wait "$daemon"
 trap - EXIT
 say "finished: the daemon stopped cleanly after ${SECONDS_TOTAL} s and commanded the safe state"
+recording=$(ls -t var/dbw/recordings/*.mcap 2>/dev/null | head -1 || true)
+if [ -n "$recording" ]; then
+  say "the flight recorder's file: what it holds"; "$BIN/dbw" record check "$recording" || true
+  say "and the same run replayed through the control core"; "$BIN/dbw" replay "$recording" || true
+fi
