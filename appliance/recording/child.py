@@ -16,6 +16,7 @@ ends the process. Once a second a status line (JSON) goes to stdout for ``dbw st
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import pickle
@@ -179,12 +180,18 @@ def serve(fd_in: int, status_out: Any, params: FileSetParams, clock_offset_ns: i
             core.candump.flush()
             if time.monotonic() >= next_status_s:
                 next_status_s = time.monotonic() + STATUS_INTERVAL_S
-                print(json.dumps(core.status()), file=status_out, flush=True)
+                _status_line(core, status_out)
     finally:
         core.files.close()
         core.candump.close()
-        print(json.dumps(core.status()), file=status_out, flush=True)
+        _status_line(core, status_out)
     return 0
+
+
+def _status_line(core: RecorderCore, status_out: Any) -> None:
+    """A daemon that is gone cannot read it: that is no reason to stop recording."""
+    with contextlib.suppress(OSError, ValueError):
+        print(json.dumps(core.status()), file=status_out, flush=True)
 
 
 def _drain(buffer: bytearray, core: RecorderCore) -> None:
