@@ -37,6 +37,8 @@ SUFFIX = ".mcap"
 PROFILE = "dbw-applique"
 # Free space is asked of the file system at most this often (log time).
 DISK_CHECK_INTERVAL_NS = 1_000_000_000
+# ... and after this many bytes, whatever the time: a burst cannot outrun the check.
+DISK_CHECK_BYTES = 1 << 20
 # After a write error (the directory gone, a read-only remount), wait this long to retry.
 RETRY_INTERVAL_NS = 5_000_000_000
 CHUNK_SIZE_BYTES = 1 << 20
@@ -147,6 +149,7 @@ class RecordingFiles:
         self.reason = ""
         self._file: _OpenFile | None = None
         self._next_disk_check_ns: int | None = None
+        self._bytes_since_check = 0
         self._retry_at_ns = 0
         self._warned = False
 
@@ -156,7 +159,11 @@ class RecordingFiles:
 
     def write(self, spec: ChannelSpec, log_time_ns: int, data: bytes, sequence: int) -> bool:
         """Write one message; False if it was dropped (and counted), never an exception."""
-        if self._next_disk_check_ns is None or log_time_ns >= self._next_disk_check_ns:
+        if (
+            self._next_disk_check_ns is None
+            or log_time_ns >= self._next_disk_check_ns
+            or self._bytes_since_check >= DISK_CHECK_BYTES
+        ):
             self._check_disk(log_time_ns)
         if self.state == "stopped":
             self.counts.drop("disk_low")
@@ -178,6 +185,7 @@ class RecordingFiles:
             return False
         self.counts.messages += 1
         self.counts.bytes_written += len(data)
+        self._bytes_since_check += len(data)
         return True
 
     def tick(self, log_time_ns: int) -> None:
@@ -273,6 +281,7 @@ class RecordingFiles:
     # ---- disk and errors ------------------------------------------------------------
     def _check_disk(self, log_time_ns: int) -> None:
         self._next_disk_check_ns = log_time_ns + DISK_CHECK_INTERVAL_NS
+        self._bytes_since_check = 0
         directory = self.params.directory
         file = self._file
         if file is not None and not file.path.exists():
