@@ -10,7 +10,9 @@ DEMO_SECONDS ?= 25
 # as the slow last resort, QEMU with busybox-static; systemd for `systemd-analyze verify`.
 # tools/vcan_run.py fetches what is not a bookworm package (testing's UML) into ~/.cache.
 HIL_DEBS := user-mode-linux kmod can-utils iproute2 patchelf qemu-system-x86 busybox-static
-TEST_DEBS := $(HIL_DEBS) systemd
+# chromium: the operator page's browser tests (Playwright drives Debian's /usr/bin/chromium;
+# `playwright install` is never run).
+TEST_DEBS := $(HIL_DEBS) systemd chromium
 SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
 
 .PHONY: demo test venv debian-deps lint typecheck unit hil bench clean

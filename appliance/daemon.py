@@ -39,6 +39,7 @@ from appliance.daemon_status import service_summary, status_document, status_lin
 from appliance.live_view import LiveView
 from appliance.logs import get_logger
 from appliance.loop_monitor import LoopLag, LoopMonitor
+from appliance.operator_page import OperatorPage, scans_document
 from appliance.recording.service import Recorder
 from appliance.sim.scanner_truth import with_simulated_scanners
 from appliance.supervisor import ServiceContext, ServiceSpec, ServiceState, Supervisor
@@ -64,6 +65,7 @@ SWITCH_INTERVAL_S = 0.001
 # interpreter and its imports.
 RECORDER_HEARTBEAT_DEADLINE_S = 5.0
 RECORDER_STARTUP_GRACE_S = 15.0
+OPERATOR_PAGE_HEARTBEAT_DEADLINE_S = 5.0  # it beats once a second
 EXIT_FAILURE = 1
 
 
@@ -170,6 +172,17 @@ class Daemon:
             self.control.on_cycle.append(self.recorder.on_cycle)
             self.control.on_start.append(self.recorder.on_core_reset)
             self.core.request_listeners.append(self.recorder.on_request)
+        # The operator page: a read-only browser view of the status (off: None).
+        self.operator_page: OperatorPage | None = None
+        if config.operator_page.enabled:
+            settings = config.operator_page
+            self.operator_page = OperatorPage(
+                self.status_document,
+                lambda: scans_document(self.io.topics, self.clock()),
+                settings.host,
+                settings.port,
+                allow_non_loopback=settings.allow_non_loopback,
+            )
         self.control_server = ControlServer(
             control_socket if control_socket is not None else config.paths.control_socket,
             DaemonControlApi(self),
@@ -218,6 +231,19 @@ class Daemon:
                         run=self.live_view.run,
                         critical=False,
                         restart=policy,
+                    )
+                ]
+            ),
+            *(
+                []
+                if self.operator_page is None
+                else [
+                    ServiceSpec(
+                        name="operator_page",
+                        run=self.operator_page.run,
+                        critical=False,
+                        restart=policy,
+                        heartbeat_deadline_s=OPERATOR_PAGE_HEARTBEAT_DEADLINE_S,
                     )
                 ]
             ),

@@ -8,7 +8,8 @@ browser watches or none. The messages are Foxglove's well-known schemas, so its 
 Log and Raw Messages panels show them with no plug-in:
 
 - ``/scan/left``, ``/scan/right``: ``foxglove.LaserScan`` in the vehicle frame;
-- ``/dbw/pose``: ``foxglove.PoseInFrame``, the pose the PC104 is given (docking);
+- ``/dbw/pose``: ``foxglove.PoseInFrame``, the pose the PC104 is given (docking), and
+  ``/tf``: ``foxglove.FrameTransform`` launcher -> vehicle, so the scans sit on the map;
 - ``/dbw/status``: JSON: mode, set speed, commands, engage blockers, faults, the wish;
 - ``/log``: ``foxglove.Log``, every note of the core (mode changes, faults) at once.
 """
@@ -24,8 +25,14 @@ from typing import Any
 
 import foxglove
 from foxglove import Channel, Context
-from foxglove.channels import LaserScanChannel, LogChannel, PoseInFrameChannel
+from foxglove.channels import (
+    FrameTransformChannel,
+    LaserScanChannel,
+    LogChannel,
+    PoseInFrameChannel,
+)
 from foxglove.messages import (
+    FrameTransform,
     LaserScan,
     Log,
     LogLevel,
@@ -118,6 +125,7 @@ class LiveView:
             for side in ("left", "right")
         }
         self.pose = PoseInFrameChannel("/dbw/pose", context=self.context)
+        self.transform = FrameTransformChannel("/tf", context=self.context)
         self.log_channel = LogChannel("/log", context=self.context)
         self.status = Channel(
             "/dbw/status", schema=STATUS_SCHEMA, message_encoding="json", context=self.context
@@ -160,6 +168,18 @@ class LiveView:
                     log_time=log_ns,
                 )
         pose = output.pc104_pose
+        if pose is not None and self.transform.has_sinks() and self.gate.update("/tf", now_s):
+            half_yaw = pose.yaw_rad / 2.0
+            self.transform.log(
+                FrameTransform(
+                    timestamp=_time(log_ns),
+                    parent_frame_id="launcher",
+                    child_frame_id="vehicle",
+                    translation=Vector3(x=pose.x_m, y=pose.y_m, z=0.0),
+                    rotation=Quaternion(x=0.0, y=0.0, z=math.sin(half_yaw), w=math.cos(half_yaw)),
+                ),
+                log_time=log_ns,
+            )
         if pose is not None and self.pose.has_sinks() and self.gate.update("/dbw/pose", now_s):
             self.pose.log(
                 PoseInFrame(

@@ -10,6 +10,7 @@ of mistake that must not reach a nine-ton vehicle.
 
 from __future__ import annotations
 
+import ipaddress
 from enum import StrEnum
 from typing import Annotated, Literal, Self
 
@@ -475,6 +476,36 @@ class LiveView(_Model):
     max_rate_hz: float = Field(10.0, gt=0.0, le=100.0)
 
 
+class OperatorPageSettings(_Model):
+    """The operator page (`appliance/operator_page/`): a read-only view of the daemon in a
+    browser (mode, reasons, faults, input ages, docking or route view, the last scans).
+
+    Off by default. It listens on loopback only; a vehicle whose operator screen is another
+    machine must say so with allow_non_loopback (there is no authentication: the network it
+    then listens on is the only protection).
+    """
+
+    enabled: bool = False
+    host: str = Field("127.0.0.1", min_length=1, max_length=255)
+    port: Port = 8080
+    allow_non_loopback: bool = False
+
+    @model_validator(mode="after")
+    def _loopback_unless_allowed(self) -> Self:
+        if self.allow_non_loopback or self.host.lower() == "localhost":
+            return self
+        try:
+            loopback = ipaddress.ip_address(self.host.strip("[]")).is_loopback
+        except ValueError:
+            loopback = False
+        if not loopback:
+            raise ValueError(
+                f"operator_page.host {self.host!r} is not a loopback address: use 127.0.0.1, "
+                "or set operator_page.allow_non_loopback = true to listen beyond this PC"
+            )
+        return self
+
+
 class Simulation(_Model):
     """The built-in simulated vehicle: the world and the twins of every device."""
 
@@ -521,6 +552,7 @@ class VehicleConfig(_Model):
     recording: Recording = Recording()
     system_monitor: SystemMonitor = SystemMonitor()
     live_view: LiveView = LiveView()
+    operator_page: OperatorPageSettings = OperatorPageSettings()
     simulation: Simulation = Simulation(enabled=False)
 
     @model_validator(mode="after")

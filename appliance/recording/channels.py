@@ -118,6 +118,17 @@ LOG_SCHEMA = _schema(
         "line": {"type": "integer"},
     },
 )
+FRAME_TRANSFORM_SCHEMA = _schema(
+    "foxglove.FrameTransform",
+    "A transform between two reference frames in 3D space",
+    {
+        "timestamp": _TIME,
+        "parent_frame_id": {"type": "string"},
+        "child_frame_id": {"type": "string"},
+        "translation": _VECTOR3,
+        "rotation": _QUATERNION,
+    },
+)
 POSE_IN_FRAME_SCHEMA = _schema(
     "foxglove.PoseInFrame",
     "A timestamped pose for an object or reference frame in 3D space",
@@ -236,6 +247,20 @@ def encode_cycle(
         yield Encoded(LOG_CHANNEL, _dumps(log_line(note, str(output.mode), log_time_ns)))
     pose = output.pc104_pose
     if pose is not None:
+        # The vehicle frame in the launcher's: Foxglove's 3D panel then draws the scans
+        # (frame "vehicle") where they are on the launcher.
+        yield Encoded(
+            ChannelSpec("/tf", "foxglove.FrameTransform", FRAME_TRANSFORM_SCHEMA),
+            _dumps(
+                {
+                    "timestamp": _time(log_time_ns),
+                    "parent_frame_id": "launcher",
+                    "child_frame_id": VEHICLE_FRAME,
+                    "translation": {"x": pose.x_m, "y": pose.y_m, "z": 0.0},
+                    "rotation": _yaw_quaternion(pose.yaw_rad),
+                }
+            ),
+        )
         yield Encoded(
             ChannelSpec("/dbw/pose", "foxglove.PoseInFrame", POSE_IN_FRAME_SCHEMA),
             _dumps(

@@ -14,6 +14,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import copy
+import re
 import shutil
 import tempfile
 import time
@@ -22,7 +23,6 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from playwright.async_api import Browser, Page, expect
 
 from appliance.config import load_config
 from appliance.daemon import Daemon, RunResult
@@ -31,10 +31,15 @@ from appliance.operator_page import OperatorPage, scans_document
 from tests.browser.conftest import PageProblems
 from tests.runtime.test_daemon_control import free_port
 
+with contextlib.suppress(ImportError):  # the `browser` fixture fails, saying how to install it
+    from playwright.async_api import Browser, Page, expect
+
 CHANGE_SHOWN_S = 1.0  # the requirement: a change in the status is on screen within 1 s
 FIRST_LOAD_S = 10.0  # the browser's first page load on a shared machine
 UNREACHABLE_SHOWN_S = 5.0  # the page's fetch deadline (1.5 s) plus room
 DAEMON_READY_S = 40.0
+SCANS_SHOWN_S = 5.0
+ENGAGE_WITHIN_S = 30.0
 REFUSAL = "outside the automatic zone: 14.2 m out (at most 12)"
 
 
@@ -257,18 +262,17 @@ async def test_the_page_beside_the_real_daemon_shows_ready_then_engaged(browser:
             assert server.bound_port is not None
             page, problems = await open_page(browser, server.bound_port)
             mode = page.get_by_test_id("mode")
-            await expect(mode).to_have_attribute("data-mode", "ready", timeout=DAEMON_READY_S * 1e3)
-            await engage(daemon)
-            await expect(mode).to_have_attribute(
-                "data-mode", "engaged", timeout=2 * CHANGE_SHOWN_S * 1e3
-            )
+            await operate_until_shown(page, daemon, Mode.READY, hand_back, DAEMON_READY_S)
+            await operate_until_shown(page, daemon, Mode.ENGAGED, engage, ENGAGE_WITHIN_S)
             await expect(mode).to_have_text("ENGAGED")
             await expect(page.get_by_test_id("input-steering.pot")).to_be_visible()
             await expect(page.get_by_test_id("dock-view")).to_have_attribute(
                 "data-drawn", "launcher,vehicle"
             )
-            points = await page.get_by_test_id("scans-view").get_attribute("data-points")
-            assert points is not None and int(points) > 0
+            # The scanners' last scans, drawn (the page polls them twice a second).
+            await expect(page.get_by_test_id("scans-view")).to_have_attribute(
+                "data-points", re.compile(r"^[1-9][0-9]*$"), timeout=SCANS_SHOWN_S * 1e3
+            )
             assert problems.messages == []
     finally:
         daemon.request_stop("test over")
@@ -279,18 +283,42 @@ async def test_the_page_beside_the_real_daemon_shows_ready_then_engaged(browser:
     assert result.exit_code == 0, result
 
 
-async def engage(daemon: Daemon, timeout_s: float = 30.0) -> None:
-    """Engage as the operator would once docking allows it; an ERROR left by a late input
-    at start-up is handed back with the manual override first, as an operator does."""
+def hand_back(daemon: Daemon) -> None:
+    """The operator's manual override: an ERROR left by an input late on a loaded machine
+    (the fault already cleared) goes back to READY."""
+    state = daemon.core.state
+    if state.mode is Mode.ERROR and not state.faults:
+        daemon.core.request("disengage", daemon.clock())
+
+
+def engage(daemon: Daemon) -> None:
+    """ENGAGE once docking allows it (in the automatic zone, a good pose)."""
+    hand_back(daemon)
+    if daemon.core.state.mode is Mode.READY and not daemon.core.engage_blockers():
+        daemon.core.request("engage", daemon.clock())
+
+
+async def operate_until_shown(
+    page: Page, daemon: Daemon, mode: Mode, operate: Callable[[Daemon], None], timeout_s: float
+) -> None:
+    """Operate the daemon into ``mode``; once it is there the page must show it within
+    ``CHANGE_SHOWN_S`` (twice that: the real daemon's status, a loaded machine). On a
+    loaded machine the daemon may fall out of the mode (a late input is a fault) before
+    the page could show it: then operate again. A daemon that stays in the mode for the
+    whole window and a page that does not show it fail the test."""
+    shown_within_ms = 2 * CHANGE_SHOWN_S * 1e3
     deadline_s = time.monotonic() + timeout_s
-    answer = (False, "not asked")
     while time.monotonic() < deadline_s:
-        state = daemon.core.state
-        if state.mode is Mode.ERROR and not state.faults:
-            daemon.core.request("disengage", daemon.clock())
-        elif state.mode is Mode.READY and not daemon.core.engage_blockers():
-            answer = daemon.core.request("engage", daemon.clock())
-            if answer[0]:
+        operate(daemon)
+        if daemon.core.state.mode is mode:
+            entered_s = daemon.core.mode_since_s
+            try:
+                await expect(page.get_by_test_id("mode")).to_have_attribute(
+                    "data-mode", str(mode), timeout=shown_within_ms
+                )
                 return
+            except AssertionError:
+                if daemon.core.mode_since_s == entered_s and daemon.core.state.mode is mode:
+                    raise  # the daemon stayed; the page did not follow
         await asyncio.sleep(0.05)
-    pytest.fail(f"engage not accepted within {timeout_s} s: {answer}; {daemon.status_line()}")
+    pytest.fail(f"the daemon did not reach {mode} within {timeout_s} s: {daemon.status_line()}")
