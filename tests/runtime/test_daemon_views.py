@@ -23,7 +23,7 @@ pytestmark = pytest.mark.slow
 
 
 def _get_json(url: str) -> Any:
-    with urllib.request.urlopen(url, timeout=5.0) as response:  # noqa: S310 - loopback only
+    with urllib.request.urlopen(url, timeout=5.0) as response:
         return json.loads(response.read())
 
 
