@@ -15,12 +15,34 @@ from typing import Any
 
 import click
 
-from appliance.cli.common import bad_input
+from appliance.cli.common import CONFIG_OPTION, bad_input, load_or_exit
 
 
 @click.group()
 def record() -> None:
     """Recordings the daemon writes (MCAP; README, Recording and replay)."""
+
+
+@record.command("list")
+@CONFIG_OPTION
+def list_recordings(config_name: str | None) -> None:
+    """The recordings in the vehicle's recording directory, oldest first."""
+    from appliance.recording.service import recording_directory
+
+    config = load_or_exit(config_name)
+    directory = recording_directory(config)
+    files = sorted(directory.glob("*.mcap")) if directory.is_dir() else []
+    if not files:
+        click.echo(f"no recordings in {directory}")
+        return
+    total = 0
+    for path in files:
+        size = path.stat().st_size
+        total += size
+        companion = path.with_suffix(".can.log")
+        extra = f" + {companion.stat().st_size / 1e6:.1f} MB candump" if companion.exists() else ""
+        click.echo(f"{path.name}  {size / 1e6:8.1f} MB{extra}")
+    click.echo(f"{len(files)} files, {total / 1e6:.1f} MB in {directory}")
 
 
 @record.command("check")

@@ -236,3 +236,18 @@ def test_replay_of_something_that_is_not_a_recording_is_refused_in_one_line(
     result = CliRunner().invoke(replay_command, [str(junk)])
     assert result.exit_code == 2
     assert result.output.count("\n") == 1 and "error:" in result.output
+
+
+def test_record_list_names_the_files_of_the_vehicle(recording_dir: Path, tmp_path: Path) -> None:
+    from appliance.cli.record import record as group
+
+    vehicle = tmp_path / "vehicle.toml"
+    vehicle.write_text(
+        'name = "sim"\n[simulation]\nenabled = true\n'
+        f'[recording]\ndirectory = "{recording_dir / "recordings"}"\n'
+    )
+    result = CliRunner().invoke(group, ["list", "--config", str(vehicle)])
+    assert result.exit_code == 0, result.output
+    for path in _files(recording_dir):
+        assert path.name in result.output
+    assert "candump" in result.output
