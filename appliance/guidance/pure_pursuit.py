@@ -30,22 +30,25 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, replace
+from functools import cached_property
 from typing import Protocol
 
 import numpy as np
 from numpy.typing import NDArray
 
-from appliance.guidance.pure_pursuit_math import (
+from appliance.guidance.path_geometry import (
     PathProjection,
     Polyline,
     goal_shift_m,
-    minimum_lookahead_m,
-    minimum_turn_radius_m,
     path_curvature_per_m,
     point_at_arc_length,
-    predict_pose,
     project_onto_path,
     signed_cross_track_m,
+)
+from appliance.guidance.pure_pursuit_math import (
+    minimum_lookahead_m,
+    minimum_turn_radius_m,
+    predict_pose,
     solve_eq2,
     steer_eq3_rad,
 )
@@ -202,9 +205,10 @@ class PursuitParams:
         """The paper's ``l_fw``: measured from the rear axle, not the centre."""
         return self.wheelbase_m / 2.0 + self.anchor_forward_m
 
-    @property
+    @cached_property
     def lookahead_floor_m(self) -> float:
-        """The schedule's minimum, raised to where full lock still reaches the goal."""
+        """The schedule's minimum, raised to where full lock still reaches the goal (once:
+        the parameters are frozen, and it is read every cycle)."""
         k = self.counter_steer_ratio_k
         virtual_axle_from_rear_m = self.wheelbase_m * k / (1.0 + k)
         turn_floor_m = minimum_lookahead_m(

@@ -28,8 +28,8 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from appliance.guidance.path_geometry import PathProjection, Polyline
 from appliance.guidance.pure_pursuit import PurePursuitTracker, PursuitParams, TrackerOutput
-from appliance.guidance.pure_pursuit_math import PathProjection, Polyline
 from appliance.guidance.route_planner import (
     AllowedDirections,
     PlannerOutput,
