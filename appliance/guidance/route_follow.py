@@ -11,7 +11,9 @@ route's limit and its end.
 Everything is worked in the route's (ENU) frame with the vehicle's *blended* pose: the
 transform is rigid, so tracking the route from the blended pose is the same geometry as
 tracking the transformed route from the local pose, at the cost of one pose instead of a
-window of points per cycle.
+window of points per cycle. The route then never moves, so the path the tracker reads
+(the route in travel order with its arc length) is made once per route and travel
+direction, not per cycle.
 
 What comes out is a wish: the daemon's mode machine and safety layer may refuse it, and
 ``ready`` False (with a reason an operator can act on) stops automatic steering. The
@@ -28,7 +30,6 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from appliance.guidance.path_geometry import PathProjection, Polyline
 from appliance.guidance.pure_pursuit import PurePursuitTracker, PursuitParams, TrackerOutput
 from appliance.guidance.route_planner import (
     AllowedDirections,
@@ -238,8 +239,8 @@ class RouteFollower:
             self.planner.reset()
             return FollowWish(True, "", status=status, planner=planned, pose=centre)
 
-        path = Polyline.from_points(planned.local_path_m)
-        projection = PathProjection(planned.local_segment_index, planned.local_fraction)
+        path = self.planner.paths.path(planned.direction)
+        projection = planned.travel_projection
         tracked = self.tracker.update(anchor, max(speed_mps, 0.0), path, projection, dt_s)
         preview = self._preview(planned)
         target = self.speed.update(
