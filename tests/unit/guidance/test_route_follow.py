@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -192,3 +193,41 @@ def test_the_tracker_on_the_travel_path_is_the_tracker_on_the_local_window(
     ):
         assert getattr(fast, name) == pytest.approx(getattr(plain, name), abs=1e-9), name
     assert fast.goal_beyond_end == plain.goal_beyond_end
+
+
+def _wanted_speed(f: RouteFollower, t_s: float) -> float:
+    """The speed the profile asks for (before its rise limit) standing at (10, 0)."""
+    f.update_fix(fix(t_s, 10.0, 0.0, 0.0), t_s)
+    wish = f.update(t_s + 0.01, 0.0, 4.47, engaged=True)
+    assert wish.ready, wish.reason
+    return f.speed.unlimited_mps
+
+
+def test_a_new_route_or_new_profile_parameters_are_used_at_once() -> None:
+    """What is made once per route and parameters is made again when either changes."""
+    turn = np.arange(0.0, 1.5, 0.04)
+    curve = np.vstack((
+        np.column_stack((np.arange(0.0, 15.0, 0.5), np.zeros(30))),
+        np.column_stack((15.0 + 12.0 * np.sin(turn), 12.0 * (1.0 - np.cos(turn)))),
+    ))  # fmt: skip
+    f = follower()
+    standing(f, 10.0, 0.0, 0.0)
+    f.reset(0.0)
+    assert _wanted_speed(f, 0.5) == pytest.approx(4.47)  # the straight: the set speed
+    f.planner.set_route(curve)
+    on_curve = _wanted_speed(f, 0.6)
+    fresh = RouteFollower(RouteFollowParams(PursuitParams.from_config(HUSKY)), curve)
+    standing(fresh, 10.0, 0.0, 0.0)
+    fresh.reset(0.0)
+    assert on_curve < 4.0  # the 12 m arc 5 m ahead
+    assert on_curve == pytest.approx(_wanted_speed(fresh, 0.6), abs=1e-9)
+    gentler = replace(f.speed.params, lateral_accel_mps2=0.5)
+    f.speed.params = gentler
+    fresh_gentle = RouteFollower(
+        RouteFollowParams(PursuitParams.from_config(HUSKY), profile=gentler), curve
+    )
+    standing(fresh_gentle, 10.0, 0.0, 0.0)
+    fresh_gentle.reset(0.0)
+    slower = _wanted_speed(f, 0.7)
+    assert slower < on_curve
+    assert slower == pytest.approx(_wanted_speed(fresh_gentle, 0.7), abs=1e-9)
