@@ -159,9 +159,12 @@ class _Fixes:
                 sigma_source=SigmaSource.GST,
             )
             self.pending.append((t_s + p.fix_latency_s, fix))
-        due = [fix for at_s, fix in self.pending if at_s <= t_s + 1e-9]
-        if due:
-            self.pending = [(at_s, fix) for at_s, fix in self.pending if at_s > t_s + 1e-9]
+        # Made in time order with one latency, so the fixes due are the first ones.
+        count = 0
+        while count < len(self.pending) and self.pending[count][0] <= t_s + 1e-9:
+            count += 1
+        due = [fix for _, fix in self.pending[:count]]
+        del self.pending[:count]
         return due
 
 
@@ -169,34 +172,41 @@ class _Truth:
     """The anchor's signed cross-track error against the course as given (left of the
     course's direction positive): the figure the run is judged by, so it is worked out
     here and not taken from the planner under test. A local search from the last
-    segment, as the vehicle cannot skip ahead."""
+    segment, as the vehicle cannot skip ahead: 44 segments a cycle, on Python floats
+    (numpy's cost per call on so few is most of the work)."""
 
     def __init__(self, course: FloatArray) -> None:
-        self.start = course[:-1]
+        start = course[:-1]
         delta = np.diff(course, axis=0)
-        self.length = np.hypot(delta[:, 0], delta[:, 1])
-        keep = self.length > 1e-9
-        self.start, delta, self.length = self.start[keep], delta[keep], self.length[keep]
-        self.unit = delta / self.length[:, None]
-        self.arc_end = np.cumsum(self.length)
+        length = np.hypot(delta[:, 0], delta[:, 1])
+        keep = length > 1e-9
+        start, delta, length = start[keep], delta[keep], length[keep]
+        unit = delta / length[:, None]
+        self.start_x: list[float] = start[:, 0].tolist()
+        self.start_y: list[float] = start[:, 1].tolist()
+        self.unit_x: list[float] = unit[:, 0].tolist()
+        self.unit_y: list[float] = unit[:, 1].tolist()
+        self.length: list[float] = length.tolist()
+        self.arc_end: list[float] = np.cumsum(length).tolist()
         self.segment = 0
 
     def update(self, x_m: float, y_m: float) -> tuple[float, float]:
         """(cross-track, arc length remaining to the course's end)."""
         lo = max(self.segment - 4, 0)
         hi = min(self.segment + 40, len(self.length))
-        rel = np.array([x_m, y_m]) - self.start[lo:hi]
-        along = np.clip(np.einsum("ij,ij->i", rel, self.unit[lo:hi]), 0.0, self.length[lo:hi])
-        foot = self.start[lo:hi] + along[:, None] * self.unit[lo:hi]
-        gap = np.hypot(*(np.array([x_m, y_m]) - foot).T)
-        best = int(np.argmin(gap))
-        self.segment = lo + best
-        u = self.unit[self.segment]
-        cross = float(u[0] * rel[best, 1] - u[1] * rel[best, 0])
-        remaining = float(
-            self.arc_end[-1]
-            - (self.arc_end[self.segment] - self.length[self.segment] + along[best])
-        )
+        sx, sy, ux, uy, length = self.start_x, self.start_y, self.unit_x, self.unit_y, self.length
+        best, best_gap = lo, math.inf
+        best_rel, best_along = (0.0, 0.0), 0.0
+        for i in range(lo, hi):
+            rel_x, rel_y = x_m - sx[i], y_m - sy[i]
+            along = rel_x * ux[i] + rel_y * uy[i]
+            along = 0.0 if along < 0.0 else length[i] if along > length[i] else along
+            gap = math.hypot(x_m - (sx[i] + along * ux[i]), y_m - (sy[i] + along * uy[i]))
+            if gap < best_gap:
+                best, best_gap, best_rel, best_along = i, gap, (rel_x, rel_y), along
+        self.segment = best
+        cross = ux[best] * best_rel[1] - uy[best] * best_rel[0]
+        remaining = self.arc_end[-1] - (self.arc_end[best] - length[best] + best_along)
         return cross, remaining
 
 
