@@ -240,34 +240,6 @@ def path_curvature_per_m(path: Polyline, projection: PathProjection, half_window
     return 0.0 if sides <= 0.0 else 2.0 * cross / sides
 
 
-def _points_along(tables: _Tables, arcs: list[float]) -> tuple[list[float], list[float]]:
-    """The points at non-decreasing arc lengths, held at the end points beyond them (as
-    ``np.interp`` does): one walk along the table for all of them."""
-    arc, xs, ys = tables.arc, tables.x, tables.y
-    first_arc, end_arc = arc[0], arc[-1]
-    out_x: list[float] = []
-    out_y: list[float] = []
-    j = -1
-    for s in arcs:
-        if s < first_arc:
-            out_x.append(xs[0])
-            out_y.append(ys[0])
-        elif s >= end_arc:
-            out_x.append(xs[-1])
-            out_y.append(ys[-1])
-        else:
-            if j < 0:
-                j = bisect.bisect_right(arc, s) - 1
-            else:
-                while arc[j + 1] <= s:
-                    j += 1
-            a0, x0, y0 = arc[j], xs[j], ys[j]
-            span = arc[j + 1] - a0
-            out_x.append((xs[j + 1] - x0) / span * (s - a0) + x0)
-            out_y.append((ys[j + 1] - y0) / span * (s - a0) + y0)
-    return out_x, out_y
-
-
 def goal_shift_m(
     path: Polyline, from_arc_m: float, lookahead_m: float, half_window_m: float
 ) -> float:
@@ -283,27 +255,62 @@ def goal_shift_m(
     """
     if lookahead_m <= 0.0:
         return 0.0
-    tables = path._tables
+    t = path._tables
+    arc, xs, ys, unit = t.arc, t.x, t.y, t.unit
+    first_arc, end_arc = arc[0], arc[-1]
     samples = max(4, math.ceil(lookahead_m / _GOAL_SHIFT_SAMPLE_M))
     step_m = lookahead_m / samples
-    u = [j * step_m for j in range(samples)] + [lookahead_m]
-    at = [from_arc_m + u_j for u_j in u]
-    ax, ay = _points_along(tables, [a - half_window_m for a in at])
-    bx, by = _points_along(tables, at)
-    cx, cy = _points_along(tables, [a + half_window_m for a in at])
-    integrand: list[float] = []
-    first_kappa = 0.0
+    # The three points of each sample as np.interp gives them (held at the path's end
+    # points beyond them; inside, the segment's slope times the way into it), each found
+    # by walking on from the last sample's segment. Written out three times: this runs
+    # 3 x ~12 times a cycle, and a call per point would cost as much as the arithmetic.
+    behind = here = ahead = -1
+    first_kappa = offset_m = last_u = last_integrand = 0.0
     for j in range(samples + 1):
-        abx, aby = bx[j] - ax[j], by[j] - ay[j]
-        bcx, bcy = cx[j] - bx[j], cy[j] - by[j]
-        acx, acy = cx[j] - ax[j], cy[j] - ay[j]
-        cross = abx * acy - aby * acx
-        sides = math.hypot(abx, aby) * math.hypot(bcx, bcy) * math.hypot(acx, acy)
-        kappa = 2.0 * cross / sides if sides > 1e-12 else 0.0
+        u = lookahead_m if j == samples else j * step_m
+        at = from_arc_m + u
+        s = at - half_window_m
+        if s < first_arc:
+            ax, ay = xs[0], ys[0]
+        elif s >= end_arc:
+            ax, ay = xs[-1], ys[-1]
+        else:
+            if behind < 0:
+                behind = bisect.bisect_right(arc, s) - 1
+            while arc[behind + 1] <= s:
+                behind += 1
+            (sx, sy), into = unit[behind], s - arc[behind]
+            ax, ay = sx * into + xs[behind], sy * into + ys[behind]
+        if at < first_arc:
+            bx, by = xs[0], ys[0]
+        elif at >= end_arc:
+            bx, by = xs[-1], ys[-1]
+        else:
+            if here < 0:
+                here = bisect.bisect_right(arc, at) - 1
+            while arc[here + 1] <= at:
+                here += 1
+            (sx, sy), into = unit[here], at - arc[here]
+            bx, by = sx * into + xs[here], sy * into + ys[here]
+        s = at + half_window_m
+        if s < first_arc:
+            cx, cy = xs[0], ys[0]
+        elif s >= end_arc:
+            cx, cy = xs[-1], ys[-1]
+        else:
+            if ahead < 0:
+                ahead = bisect.bisect_right(arc, s) - 1
+            while arc[ahead + 1] <= s:
+                ahead += 1
+            (sx, sy), into = unit[ahead], s - arc[ahead]
+            cx, cy = sx * into + xs[ahead], sy * into + ys[ahead]
+        abx, aby, acx, acy = bx - ax, by - ay, cx - ax, cy - ay
+        sides = math.hypot(abx, aby) * math.hypot(cx - bx, cy - by) * math.hypot(acx, acy)
+        kappa = 2.0 * (abx * acy - aby * acx) / sides if sides > 1e-12 else 0.0
+        integrand = (lookahead_m - u) * kappa
         if j == 0:
             first_kappa = kappa
-        integrand.append((lookahead_m - u[j]) * kappa)
-    offset_m = 0.0
-    for j in range(samples):
-        offset_m += 0.5 * (integrand[j + 1] + integrand[j]) * (u[j + 1] - u[j])
+        else:
+            offset_m += 0.5 * (integrand + last_integrand) * (u - last_u)
+        last_u, last_integrand = u, integrand
     return 0.5 * lookahead_m**2 * first_kappa - offset_m

@@ -49,6 +49,9 @@ from appliance.localization.compound import wrap_angle_rad
 
 FloatArray = NDArray[np.float64]
 AllowedDirections = Literal["forward", "reverse", "both"]
+# Above this many coarse groups the coarse pass works on arrays: a long route's first
+# search; the window around the last projection is a few dozen, done on floats.
+_VECTOR_GROUPS = 64
 
 
 @dataclass(frozen=True)
@@ -189,6 +192,8 @@ class RoutePlanner:
         ends = np.minimum(starts + stride, len(d))
         self._coarse_x, self._coarse_y = route[starts, 0].copy(), route[starts, 1].copy()
         self._coarse_span = self._cum_s[ends] - self._cum_s[starts]
+        self._coarse_xy_list: list[list[float]] = route[starts].tolist()
+        self._coarse_span_list: list[float] = self._coarse_span.tolist()
         # Python lists for the scalar look-ups: a numpy scalar costs more than the sum.
         self._cum_list: list[float] = self._cum_s.tolist()
         self._len_list: list[float] = self._len.tolist()
@@ -278,10 +283,20 @@ class RoutePlanner:
         """
         stride = self.params.coarse_stride
         g_lo, g_hi = lo_v // stride, (hi_v - 1) // stride + 1
-        distance = np.hypot(self._coarse_x[g_lo:g_hi] - px, self._coarse_y[g_lo:g_hi] - py)
-        kept = np.flatnonzero(distance - self._coarse_span[g_lo:g_hi] <= distance.min())
-        first = (g_lo + int(kept[0])) * stride
-        last = min((g_lo + int(kept[-1]) + 1) * stride, len(self._dx)) - 1
+        if g_hi - g_lo > _VECTOR_GROUPS:  # the whole route (the first search): numpy
+            distance = np.hypot(self._coarse_x[g_lo:g_hi] - px, self._coarse_y[g_lo:g_hi] - py)
+            kept = np.flatnonzero(distance - self._coarse_span[g_lo:g_hi] <= distance.min())
+            first_kept, last_kept = g_lo + int(kept[0]), g_lo + int(kept[-1])
+        else:  # the window around the last projection, each cycle: Python floats
+            coarse, span = self._coarse_xy_list, self._coarse_span_list
+            distances = [math.hypot(x - px, y - py) for x, y in coarse[g_lo:g_hi]]
+            nearest = min(distances)
+            kept_groups = [
+                g_lo + k for k, d in enumerate(distances) if d - span[g_lo + k] <= nearest
+            ]
+            first_kept, last_kept = kept_groups[0], kept_groups[-1]
+        first = first_kept * stride
+        last = min((last_kept + 1) * stride, len(self._dx)) - 1
         return first, last
 
     def _vertex_range(self, s_min: float, s_max: float) -> tuple[int, int]:
