@@ -104,6 +104,11 @@ class Polyline:
         filled = [u if u is not None else (0.0, 0.0) for u in unit]  # never: length > 0
         return _Tables(x, y, arc, filled)
 
+    def prepare(self) -> None:
+        """Make the look-up tables now rather than at the first look-up (a path made
+        ahead of the control cycles that read it)."""
+        _ = self._tables
+
     @property
     def last_segment(self) -> int:
         return int(self.points_m.shape[0]) - 2

@@ -126,6 +126,11 @@ class RouteFollower:
         # From the antenna back to the centre (the antenna is not turned on the vehicle).
         self._centre_from_antenna = Pose2D(-params.antenna_forward_m, -params.antenna_left_m, 0.0)
         self.reset_localization()
+        # The route in each direction it may be driven, made now (at the route's
+        # selection) rather than in the first cycle that drives it.
+        for direction in TravelDirection:
+            if allowed in ("both", direction.value):
+                self._curve_table(direction)
 
     # ---- resets ------------------------------------------------------------------------
     def reset(self, speed_mps: float = 0.0, front_steer_rad: float = 0.0) -> None:
@@ -265,15 +270,14 @@ class RouteFollower:
         """The curve speeds along the route driven in ``direction``: made once for the
         planner's route and the speed target's parameters, made again if either is
         replaced."""
-        made_for = (self.planner.paths, self.speed.params)
-        if self._curve_tables_for is None or any(
-            new is not old for new, old in zip(made_for, self._curve_tables_for, strict=True)
-        ):
-            self._curve_tables, self._curve_tables_for = {}, made_for
+        paths, profile = self.planner.paths, self.speed.params
+        made_for = self._curve_tables_for
+        if made_for is None or made_for[0] is not paths or made_for[1] is not profile:
+            self._curve_tables, self._curve_tables_for = {}, (paths, profile)
         table = self._curve_tables.get(direction)
         if table is None:
-            path = made_for[0].path(direction)
-            table = CurveSpeedTable(path.arc_m, path_curvature(path.points_m), made_for[1])
+            path = paths.path(direction)
+            table = CurveSpeedTable(path.arc_m, path_curvature(path.points_m), profile)
             self._curve_tables[direction] = table
         return table
 

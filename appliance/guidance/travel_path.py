@@ -56,6 +56,7 @@ class TravelPaths:
             forward = direction is TravelDirection.FORWARD
             points = self.route_m if forward else self.route_m[::-1]
             path = self._paths[direction] = Polyline.from_points(points)
+            path.prepare()
         return path
 
     def projection(self, direction: TravelDirection, progress_m: float) -> PathProjection:
