@@ -16,6 +16,7 @@ import bisect
 import math
 from dataclasses import dataclass
 from functools import cached_property
+from typing import NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
@@ -28,10 +29,9 @@ _ARC_EPSILON_M = 1e-9
 _GOAL_SHIFT_SAMPLE_M = 0.25
 
 
-@dataclass(frozen=True)
-class PathProjection:
+class PathProjection(NamedTuple):
     """A point on a polyline: on segment ``segment_index`` (vertex i to i+1), ``fraction``
-    of the way along it."""
+    of the way along it. (A named tuple: a few are made every cycle.)"""
 
     segment_index: int
     fraction: float

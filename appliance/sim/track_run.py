@@ -172,8 +172,12 @@ class _Truth:
     """The anchor's signed cross-track error against the course as given (left of the
     course's direction positive): the figure the run is judged by, so it is worked out
     here and not taken from the planner under test. A local search from the last
-    segment, as the vehicle cannot skip ahead: 44 segments a cycle, on Python floats
-    (numpy's cost per call on so few is most of the work)."""
+    segment, as the vehicle cannot skip ahead: the nearest of the 44 segments from 4
+    behind to 40 ahead. Segments come in groups of 8 with a circle around each; the
+    group the vehicle was on is searched first, and another only if its circle comes
+    nearer than the nearest segment so far (the same answer, from a fraction of them)."""
+
+    _GROUP = 8
 
     def __init__(self, course: FloatArray) -> None:
         start = course[:-1]
@@ -189,25 +193,57 @@ class _Truth:
         self.length: list[float] = length.tolist()
         self.arc_end: list[float] = np.cumsum(length).tolist()
         self.segment = 0
+        # each group's circle: the centre of its end points' box, and the farthest of them
+        ends = np.vstack((start, start[-1:] + delta[-1:]))
+        self.circles: list[tuple[float, float, float]] = []
+        for first in range(0, len(length), self._GROUP):
+            points = ends[first : min(first + self._GROUP, len(length)) + 1]
+            centre = 0.5 * (points.min(axis=0) + points.max(axis=0))
+            radius = float(np.max(np.hypot(*(points - centre).T)))
+            self.circles.append((float(centre[0]), float(centre[1]), radius))
 
     def update(self, x_m: float, y_m: float) -> tuple[float, float]:
         """(cross-track, arc length remaining to the course's end)."""
         lo = max(self.segment - 4, 0)
         hi = min(self.segment + 40, len(self.length))
+        group = self._GROUP
+        here = self.segment // group
+        best = (math.inf, 0, 0.0)  # gap, segment, along
+        best = self._search(x_m, y_m, max(lo, here * group), min(hi, here * group + group), best)
+        for g in range(lo // group, (hi - 1) // group + 1):
+            first, last = max(lo, g * group), min(hi, g * group + group)
+            if g == here:
+                continue  # searched first
+            cx, cy, radius = self.circles[g]
+            if math.hypot(x_m - cx, y_m - cy) - radius > best[0] + 1e-9:
+                continue  # no segment of it comes nearer
+            best = self._search(x_m, y_m, first, last, best)
+        _, i, along = best
+        self.segment = i
+        ux, uy = self.unit_x[i], self.unit_y[i]
+        cross = ux * (y_m - self.start_y[i]) - uy * (x_m - self.start_x[i])
+        remaining = self.arc_end[-1] - (self.arc_end[i] - self.length[i] + along)
+        return cross, remaining
+
+    def _search(
+        self,
+        x_m: float,
+        y_m: float,
+        first: int,
+        last: int,
+        best: tuple[float, int, float],
+    ) -> tuple[float, int, float]:
+        """The nearer of ``best`` and segments first..last-1 (a tie: the lower index)."""
         sx, sy, ux, uy, length = self.start_x, self.start_y, self.unit_x, self.unit_y, self.length
-        best, best_gap = lo, math.inf
-        best_rel, best_along = (0.0, 0.0), 0.0
-        for i in range(lo, hi):
+        best_gap, best_i, best_along = best
+        for i in range(first, last):
             rel_x, rel_y = x_m - sx[i], y_m - sy[i]
             along = rel_x * ux[i] + rel_y * uy[i]
             along = 0.0 if along < 0.0 else length[i] if along > length[i] else along
             gap = math.hypot(x_m - (sx[i] + along * ux[i]), y_m - (sy[i] + along * uy[i]))
-            if gap < best_gap:
-                best, best_gap, best_rel, best_along = i, gap, (rel_x, rel_y), along
-        self.segment = best
-        cross = ux[best] * best_rel[1] - uy[best] * best_rel[0]
-        remaining = self.arc_end[-1] - (self.arc_end[best] - length[best] + best_along)
-        return cross, remaining
+            if gap < best_gap or (gap == best_gap and i < best_i):
+                best_gap, best_i, best_along = gap, i, along
+        return best_gap, best_i, best_along
 
 
 def _start_state(course: FloatArray, offset_m: float, speed_mps: float) -> VehicleState:
