@@ -332,9 +332,10 @@ class LocalGlobalTransform:
         yaw_diff = pairs.yaw_diff_rad
         ref = float(yaw_diff[-1])
         yaw = ref + ((yaw_diff - ref + math.pi) % math.tau - math.pi)  # wrap_angle_rad
-        yaw_groups = _Groups(w / (w.mean() * p.heading_sigma_rad**2), seg, tau)
+        mean_w = np.add.reduce(w) / len(w)  # w.mean(), without its wrapper
+        yaw_groups = _Groups(w / (mean_w * p.heading_sigma_rad**2), seg, tau)
         yaw_rate = yaw_groups.shared_rate(yaw, p.yaw_drift_prior_rps)
-        yaw_i = yaw_groups.offsets(yaw, yaw_rate)[seg] + yaw_rate * tau
+        yaw_i = yaw_groups.per_pair(yaw_groups.offsets(yaw, yaw_rate)) + yaw_rate * tau
         # Each pair's word on where the newest fix's global point is in the local frame
         # at t_ref. A yaw drift turns the local frame about its origin, which moves that
         # point by yaw_rate × J R (g − g_ref) per second: integrated along the fixes, so
@@ -345,7 +346,7 @@ class LocalGlobalTransform:
         rel_x, rel_y = global_x - centre[0], global_y - centre[1]
         cos, sin = np.cos(yaw_i), np.sin(yaw_i)
         turned_x, turned_y = cos * rel_x - sin * rel_y, sin * rel_x + cos * rel_y
-        step_s = np.diff(tau)
+        step_s = tau[1:] - tau[:-1]
         m_x = pairs.local_x - turned_x - yaw_rate * _integral_to_end(step_s, -turned_y)
         m_y = pairs.local_y - turned_y - yaw_rate * _integral_to_end(step_s, turned_x)
         prior = p.translation_drift_prior_mps
@@ -512,9 +513,14 @@ class _Groups:
     def __init__(self, w: FloatArray, seg: NDArray[np.intp], tau: FloatArray) -> None:
         self.w, self.seg, self.tau = w, seg, tau
         self.total = cast(FloatArray, np.bincount(seg, weights=w))  # weighted: floats
-        self._tc = tau - self.means(tau)[seg]
+        self._one = len(self.total) == 1
+        self._tc = tau - self.per_pair(self.means(tau))
         self._wtc = w * self._tc
         self._wtc_tc = float(self._wtc @ self._tc)
+
+    def per_pair(self, per_segment: FloatArray) -> FloatArray:
+        """Each pair's segment's value (one segment: broadcast as it is)."""
+        return per_segment if self._one else per_segment[self.seg]
 
     def means(self, values: FloatArray) -> FloatArray:
         result: FloatArray = np.bincount(self.seg, weights=self.w * values) / self.total
@@ -524,7 +530,7 @@ class _Groups:
         """The slope of y in time shared by each segment's line: weighted least squares
         with a zero-mean prior of σ ``prior_sigma`` on it, so a short window fits no rate
         from noise."""
-        yc = y - self.means(y)[self.seg]
+        yc = y - self.per_pair(self.means(y))
         return float(self._wtc @ yc / (self._wtc_tc + prior_sigma**-2))
 
     def offsets(self, y: FloatArray, rate: float) -> FloatArray:
@@ -532,13 +538,14 @@ class _Groups:
         return self.means(y - rate * self.tau)
 
 
+_ZERO = np.zeros(1)
+
+
 def _integral_to_end(step_s: FloatArray, h: FloatArray) -> FloatArray:
     """∫ h dt from each sample's time to the last one (trapezoids between samples
     ``step_s`` apart)."""
     pieces = 0.5 * (h[:-1] + h[1:]) * step_s
-    out = np.zeros_like(h)
-    out[:-1] = np.cumsum(pieces[::-1])[::-1]
-    return out
+    return np.concatenate((pieces[::-1].cumsum()[::-1], _ZERO))
 
 
 def _extrapolated(e: _Estimate, tau_s: float) -> tuple[float, float, float]:
