@@ -30,22 +30,25 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, replace
+from functools import cached_property
 from typing import Protocol
 
 import numpy as np
 from numpy.typing import NDArray
 
-from appliance.guidance.pure_pursuit_math import (
+from appliance.guidance.path_geometry import (
     PathProjection,
     Polyline,
     goal_shift_m,
-    minimum_lookahead_m,
-    minimum_turn_radius_m,
     path_curvature_per_m,
     point_at_arc_length,
-    predict_pose,
     project_onto_path,
     signed_cross_track_m,
+)
+from appliance.guidance.pure_pursuit_math import (
+    minimum_lookahead_m,
+    minimum_turn_radius_m,
+    predict_pose,
     solve_eq2,
     steer_eq3_rad,
 )
@@ -197,14 +200,15 @@ class PursuitParams:
             curvature_feedforward=False,
         )
 
-    @property
+    @cached_property
     def anchor_from_rear_axle_m(self) -> float:
         """The paper's ``l_fw``: measured from the rear axle, not the centre."""
         return self.wheelbase_m / 2.0 + self.anchor_forward_m
 
-    @property
+    @cached_property
     def lookahead_floor_m(self) -> float:
-        """The schedule's minimum, raised to where full lock still reaches the goal."""
+        """The schedule's minimum, raised to where full lock still reaches the goal (once:
+        the parameters are frozen, and it is read every cycle)."""
         k = self.counter_steer_ratio_k
         virtual_axle_from_rear_m = self.wheelbase_m * k / (1.0 + k)
         turn_floor_m = minimum_lookahead_m(
@@ -273,7 +277,11 @@ class PurePursuitTracker:
         checks each cycle); ``projection`` is the anchor's nearest point on it (the
         planner's, or :func:`project_onto_path`). ValueError on non-finite or malformed
         input."""
-        if not all(math.isfinite(v) for v in (*anchor_pose, speed_mps, dt_s)):
+        x_m, y_m, yaw_rad = anchor_pose
+        finite = math.isfinite
+        if not (finite(x_m) and finite(y_m) and finite(yaw_rad) and finite(speed_mps)):
+            raise ValueError("anchor pose, speed and dt must be finite")
+        if not finite(dt_s):
             raise ValueError("anchor pose, speed and dt must be finite")
         if yaw_rate_radps is not None and not math.isfinite(yaw_rate_radps):
             raise ValueError("yaw rate must be finite")
@@ -291,12 +299,9 @@ class PurePursuitTracker:
         )
         (goal_x, goal_y), beyond_end = point_at_arc_length(path, predicted_projection, lookahead)
         if p.curvature_feedforward:
-            shift = goal_shift_m(
-                path, path.arc_at(predicted_projection), lookahead, p.curvature_half_window_m
-            )
-            nx, ny = path.direction(
-                path.segment_at_arc(path.arc_at(predicted_projection) + lookahead)
-            )
+            from_arc_m = path.arc_at(predicted_projection)
+            shift = goal_shift_m(path, from_arc_m, lookahead, p.curvature_half_window_m)
+            nx, ny = path.direction(path.segment_at_arc(from_arc_m + lookahead))
             goal_x, goal_y = goal_x - ny * shift, goal_y + nx * shift
         dx, dy = goal_x - predicted.x_m, goal_y - predicted.y_m
         distance = math.hypot(dx, dy)
@@ -329,7 +334,7 @@ class PurePursuitTracker:
             goal_y_m=goal_y,
             goal_beyond_end=beyond_end,
             eta_rad=eta,
-            cross_track_m=signed_cross_track_m(path, projection, anchor_pose.x_m, anchor_pose.y_m),
+            cross_track_m=signed_cross_track_m(path, projection, x_m, y_m),
             path_curvature_per_m=path_curvature_per_m(path, projection, p.curvature_half_window_m),
             unclamped_front_steer_rad=wish,
             predicted_anchor=predicted,

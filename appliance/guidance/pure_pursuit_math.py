@@ -1,7 +1,8 @@
 """Pure pursuit for proportional four-wheel counter-steer: the pure functions.
 
-Stanley et al.'s eqs. 1-3, written in this repository's frames, and the path geometry the
-tracker (``pure_pursuit.py``) needs. Everything here is a function of its arguments.
+Stanley et al.'s eqs. 1-3, written in this repository's frames, the look-ahead's floor and
+the anchor's prediction the tracker (``pure_pursuit.py``) needs; the path it reads is
+``path_geometry``. Everything here is a function of its arguments.
 
 **Signs.** Frames are counter-clockwise positive. ``eta_rad`` is the angle from the
 vehicle's heading to the line from the anchor to the goal (a goal to the left is positive)
@@ -52,8 +53,6 @@ EQ2_MAX_ITERATIONS = 50
 # Below this |phi| the ratio tan(k phi) / tan(phi) is replaced by its series, because the
 # quotient of two tiny tangents loses digits and is 0/0 at phi = 0.
 _SMALL_ANGLE_RAD = 1e-4
-# Rounding left over from walking the segments: not "past the end".
-_ARC_EPSILON_M = 1e-9
 
 
 def steer_for_ratio_rad(
@@ -249,192 +248,7 @@ def minimum_lookahead_m(
     )
 
 
-# --- the path -------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class PathProjection:
-    """A point on a polyline: on segment ``segment_index`` (vertex i to i+1), ``fraction``
-    of the way along it."""
-
-    segment_index: int
-    fraction: float
-
-
-@dataclass(frozen=True, eq=False)
-class Polyline:
-    """A path in travel order with its cumulative arc length, built once per path.
-
-    The tracker runs at the control rate while the planner changes the path at 0.5 Hz, so
-    the O(N) work (checks, arc lengths) is done here once and each cycle only searches
-    the table. Zero-length segments (repeated vertices) are allowed; the points are a
-    read-only copy.
-    """
-
-    points_m: FloatArray
-    arc_m: FloatArray  # arc_m[i]: path length from vertex 0 to vertex i
-
-    @classmethod
-    def from_points(cls, points_m: FloatArray) -> Polyline:
-        """An (N, 2) finite array, N >= 2, of non-zero length; ValueError otherwise."""
-        points = np.array(points_m, dtype=np.float64)
-        if points.ndim != 2 or points.shape[1] != 2 or points.shape[0] < 2:
-            raise ValueError(f"path must be an (N, 2) array with N >= 2 (got {points.shape})")
-        if not np.all(np.isfinite(points)):
-            raise ValueError("path holds non-finite coordinates")
-        lengths = np.hypot(*np.diff(points, axis=0).T)
-        arc = np.concatenate([[0.0], np.cumsum(lengths)])
-        if not arc[-1] > 0.0:
-            raise ValueError("path has no length (all vertices coincide)")
-        points.flags.writeable = False
-        arc.flags.writeable = False
-        return cls(points, arc)
-
-    @property
-    def last_segment(self) -> int:
-        return int(self.points_m.shape[0]) - 2
-
-    def check(self, projection: PathProjection) -> None:
-        if not 0 <= projection.segment_index <= self.last_segment:
-            raise ValueError(
-                f"segment_index {projection.segment_index} outside 0..{self.last_segment}"
-            )
-        if not 0.0 <= projection.fraction <= 1.0:
-            raise ValueError(f"fraction {projection.fraction} outside [0, 1]")
-
-    def arc_at(self, projection: PathProjection) -> float:
-        i = projection.segment_index
-        start, end = float(self.arc_m[i]), float(self.arc_m[i + 1])
-        return start + projection.fraction * (end - start)
-
-    def segment_at_arc(self, arc_m: float) -> int:
-        """The segment holding the point ``arc_m`` along the path (clamped to the ends)."""
-        index = int(np.searchsorted(self.arc_m, arc_m, side="right")) - 1
-        return max(0, min(self.last_segment, index))
-
-    def direction(self, segment_index: int) -> tuple[float, float]:
-        """Unit direction of a segment, or of the nearest one with length (forward first)."""
-        i = segment_index
-        if not self.arc_m[i + 1] > self.arc_m[i]:
-            lengths = np.diff(self.arc_m)
-            ahead = np.flatnonzero(lengths[i:])
-            i = i + int(ahead[0]) if ahead.size else int(np.flatnonzero(lengths[:i])[-1])
-        length = float(self.arc_m[i + 1] - self.arc_m[i])
-        delta = self.points_m[i + 1] - self.points_m[i]
-        return float(delta[0]) / length, float(delta[1]) / length
-
-    def point(self, projection: PathProjection) -> tuple[float, float]:
-        i, f = projection.segment_index, projection.fraction
-        start, end = self.points_m[i], self.points_m[i + 1]
-        return float(start[0] + f * (end[0] - start[0])), float(start[1] + f * (end[1] - start[1]))
-
-
-def project_onto_path(
-    path: Polyline, x_m: float, y_m: float, first_segment: int = 0, last_segment: int = -1
-) -> PathProjection:
-    """Nearest point of segments ``first_segment..last_segment`` (inclusive) to (x, y).
-
-    A plain nearest-point search within an index window, for tests and standalone use:
-    the route planner's projection (bounded both ways from the last index, refusing jumps
-    where the path overlaps itself) is the one the vehicle uses. Ties go to the lowest
-    segment index.
-    """
-    first = max(0, min(first_segment, path.last_segment))
-    last = (
-        path.last_segment if last_segment < 0 else max(first, min(last_segment, path.last_segment))
-    )
-    starts = path.points_m[first : last + 1]
-    deltas = path.points_m[first + 1 : last + 2] - starts
-    lengths_sq = np.square(path.arc_m[first + 1 : last + 2] - path.arc_m[first : last + 1])
-    to_point = np.array([x_m, y_m]) - starts
-    dots = to_point[:, 0] * deltas[:, 0] + to_point[:, 1] * deltas[:, 1]
-    fractions = np.clip(
-        np.divide(dots, lengths_sq, out=np.zeros_like(dots), where=lengths_sq > 0), 0.0, 1.0
-    )
-    off = to_point - fractions[:, None] * deltas
-    best = int(np.argmin(off[:, 0] ** 2 + off[:, 1] ** 2))
-    return PathProjection(first + best, float(fractions[best]))
-
-
-def point_at_arc_length(
-    path: Polyline, projection: PathProjection, ahead_m: float
-) -> tuple[tuple[float, float], bool]:
-    """The point ``ahead_m`` along the path from ``projection`` (negative: behind).
-
-    Interpolated within a segment, never snapped to a vertex. Past either end the path is
-    continued straight along its end segment: the goal keeps moving smoothly ahead of a
-    vehicle nearing the route's end, so it settles onto the last segment's heading
-    instead of chasing a goal that shrinks onto it (eta would swing as the distance goes
-    to zero). The flag says whether the point lies on the continuation.
-    """
-    target = path.arc_at(projection) + ahead_m
-    total = float(path.arc_m[-1])
-    if target > total + _ARC_EPSILON_M:
-        ux, uy = path.direction(path.last_segment)
-        end = path.points_m[-1]
-        beyond = target - total
-        return (float(end[0]) + beyond * ux, float(end[1]) + beyond * uy), True
-    if target < -_ARC_EPSILON_M:
-        ux, uy = path.direction(0)
-        start = path.points_m[0]
-        return (float(start[0]) + target * ux, float(start[1]) + target * uy), True
-    i = path.segment_at_arc(target)
-    start_arc, end_arc = float(path.arc_m[i]), float(path.arc_m[i + 1])
-    fraction = 1.0 if end_arc == start_arc else (target - start_arc) / (end_arc - start_arc)
-    return path.point(PathProjection(i, min(1.0, max(0.0, fraction)))), False
-
-
-def signed_cross_track_m(
-    path: Polyline, projection: PathProjection, x_m: float, y_m: float
-) -> float:
-    """Distance of (x, y) from the projected point, positive when left of the path."""
-    px, py = path.point(projection)
-    ux, uy = path.direction(projection.segment_index)
-    return ux * (y_m - py) - uy * (x_m - px)
-
-
-def path_curvature_per_m(path: Polyline, projection: PathProjection, half_window_m: float) -> float:
-    """Signed curvature (left positive) of the circle through the path points
-    ``half_window_m`` behind, at and ahead of the projection (Menger curvature): a
-    polyline's curvature lives in its vertices, so it is measured over a window."""
-    (ax, ay), _ = point_at_arc_length(path, projection, -half_window_m)
-    bx, by = path.point(projection)
-    (cx, cy), _ = point_at_arc_length(path, projection, half_window_m)
-    cross = (bx - ax) * (cy - ay) - (by - ay) * (cx - ax)
-    sides = (
-        math.hypot(bx - ax, by - ay) * math.hypot(cx - bx, cy - by) * math.hypot(cx - ax, cy - ay)
-    )
-    return 0.0 if sides <= 0.0 else 2.0 * cross / sides
-
-
-def goal_shift_m(
-    path: Polyline, from_arc_m: float, lookahead_m: float, half_window_m: float
-) -> float:
-    """How far left to move the goal so that the arc through it has the path's curvature
-    at ``from_arc_m`` instead of the look-ahead's weighted mean (see PursuitParams).
-
-    A path ahead of a vehicle on it is, to first order, ``y(L) = int_0^L (L - u) k(u) du``
-    sideways of its tangent, and the arc through that point has curvature ``2 y(L) / L^2``;
-    the shift is ``L^2 k(0) / 2 - y(L)``, zero where the curvature does not change. The
-    curvature is the Menger one over +-``half_window_m`` (a polyline's lives in its
-    vertices), sampled every quarter metre; past the path's ends it is taken as straight.
-    """
-    if lookahead_m <= 0.0:
-        return 0.0
-    samples = max(4, math.ceil(lookahead_m / 0.25))
-    u = np.linspace(0.0, lookahead_m, samples + 1)
-    at = from_arc_m + u
-    arc, xs, ys = path.arc_m, path.points_m[:, 0], path.points_m[:, 1]
-    ax, ay = np.interp(at - half_window_m, arc, xs), np.interp(at - half_window_m, arc, ys)
-    bx, by = np.interp(at, arc, xs), np.interp(at, arc, ys)
-    cx, cy = np.interp(at + half_window_m, arc, xs), np.interp(at + half_window_m, arc, ys)
-    cross = (bx - ax) * (cy - ay) - (by - ay) * (cx - ax)
-    sides = np.hypot(bx - ax, by - ay) * np.hypot(cx - bx, cy - by) * np.hypot(cx - ax, cy - ay)
-    kappa = np.divide(2.0 * cross, sides, out=np.zeros_like(cross), where=sides > 1e-12)
-    weights = lookahead_m - u
-    integrand = weights * kappa
-    offset_m = float(np.sum(0.5 * (integrand[1:] + integrand[:-1]) * np.diff(u)))
-    return 0.5 * lookahead_m**2 * float(kappa[0]) - offset_m
+# --- prediction -------------------------------------------------------------------
 
 
 def predict_pose(

@@ -11,7 +11,9 @@ route's limit and its end.
 Everything is worked in the route's (ENU) frame with the vehicle's *blended* pose: the
 transform is rigid, so tracking the route from the blended pose is the same geometry as
 tracking the transformed route from the local pose, at the cost of one pose instead of a
-window of points per cycle.
+window of points per cycle. The route then never moves, so what the tracker and the
+speed profile read of it (the route in travel order with its arc length, each point's
+curve speed) is made once per route, travel direction and parameters, not per cycle.
 
 What comes out is a wish: the daemon's mode machine and safety layer may refuse it, and
 ``ready`` False (with a reason an operator can act on) stops automatic steering. The
@@ -25,11 +27,9 @@ import math
 from dataclasses import dataclass, field
 from typing import Any
 
-import numpy as np
 import numpy.typing as npt
 
 from appliance.guidance.pure_pursuit import PurePursuitTracker, PursuitParams, TrackerOutput
-from appliance.guidance.pure_pursuit_math import PathProjection, Polyline
 from appliance.guidance.route_planner import (
     AllowedDirections,
     PlannerOutput,
@@ -38,7 +38,13 @@ from appliance.guidance.route_planner import (
     RoutePlanner,
     engagement_check,
 )
-from appliance.guidance.speed_profile import SpeedProfileParams, SpeedTarget, path_curvature
+from appliance.guidance.speed_profile import (
+    CurveSpeedTable,
+    SpeedProfileParams,
+    SpeedTarget,
+    path_curvature,
+)
+from appliance.guidance.travel_path import TravelDirection, TravelPaths
 from appliance.localization.dead_reckoning import DeadReckoning
 from appliance.localization.frame_blend import (
     FrameBlendParams,
@@ -47,8 +53,6 @@ from appliance.localization.frame_blend import (
 from appliance.localization.gnss_pose import GnssNoFix, GnssPose
 from appliance.localization.gnss_quality import FixVerdictParams, extrapolate, fix_verdict
 from drivers.geometry import Pose2D
-
-FloatArray = npt.NDArray[np.float64]
 
 # Fixes waiting for the dead reckoning to reach their measurement time (a second at 20 Hz).
 MAX_PENDING_FIXES = 20
@@ -111,14 +115,9 @@ class RouteFollower:
         self.params = params
         self.planner = RoutePlanner(route_enu_m, params.planner, allowed)
         self.route_m = self.planner.route_m
-        # The route's arc length and curvature in each travel direction, once: the
-        # speed profile reads the next preview_m of them every cycle.
-        curvature = path_curvature(self.route_m)
-        arc = np.concatenate(([0.0], np.cumsum(np.hypot(*np.diff(self.route_m, axis=0).T))))
-        self._profile_tables = {
-            "forward": (arc, curvature),
-            "reverse": (arc[-1] - arc[::-1], -curvature[::-1]),
-        }
+        # Each travel direction's curve speeds, made when first driven (``_curve_table``).
+        self._curve_tables: dict[TravelDirection, CurveSpeedTable] = {}
+        self._curve_tables_for: tuple[TravelPaths, SpeedProfileParams] | None = None
         self.speed_limit_mps = speed_limit_mps
         self.tracker = PurePursuitTracker(params.pursuit)
         self.speed = SpeedTarget(params.profile)
@@ -127,6 +126,11 @@ class RouteFollower:
         # From the antenna back to the centre (the antenna is not turned on the vehicle).
         self._centre_from_antenna = Pose2D(-params.antenna_forward_m, -params.antenna_left_m, 0.0)
         self.reset_localization()
+        # The route in each direction it may be driven, made now (at the route's
+        # selection) rather than in the first cycle that drives it.
+        for direction in TravelDirection:
+            if allowed in ("both", direction.value):
+                self._curve_table(direction)
 
     # ---- resets ------------------------------------------------------------------------
     def reset(self, speed_mps: float = 0.0, front_steer_rad: float = 0.0) -> None:
@@ -238,12 +242,12 @@ class RouteFollower:
             self.planner.reset()
             return FollowWish(True, "", status=status, planner=planned, pose=centre)
 
-        path = Polyline.from_points(planned.local_path_m)
-        projection = PathProjection(planned.local_segment_index, planned.local_fraction)
+        path = self.planner.paths.path(planned.direction)
+        projection = planned.travel_projection
         tracked = self.tracker.update(anchor, max(speed_mps, 0.0), path, projection, dt_s)
-        preview = self._preview(planned)
-        target = self.speed.update(
-            set_speed_mps, self.speed_limit_mps, preview, planned.remaining_m, now_s
+        curve_limit = self._curve_table(planned.direction).limit_mps(planned.progress_m)
+        target = self.speed.update_with_curve_limit(
+            set_speed_mps, self.speed_limit_mps, curve_limit, planned.remaining_m, now_s
         )
         status |= {
             "lookahead_m": round(tracked.lookahead_m, 2),
@@ -262,15 +266,20 @@ class RouteFollower:
             pose=centre,
         )
 
-    def _preview(self, planned: PlannerOutput) -> FloatArray:
-        """(distance ahead, curvature) of the route's points within the preview, in the
-        travel direction; the last point at or behind the vehicle at distance 0 (the
-        vehicle is on the segment leaving it), as ``speed_profile.curvature_preview``."""
-        arc, curvature = self._profile_tables[str(planned.direction)]
-        along = planned.progress_m
-        first = max(int(np.searchsorted(arc, along, side="right")) - 1, 0)
-        last = int(np.searchsorted(arc, along + self.params.profile.preview_m, side="right"))
-        return np.column_stack((np.maximum(arc[first:last] - along, 0.0), curvature[first:last]))
+    def _curve_table(self, direction: TravelDirection) -> CurveSpeedTable:
+        """The curve speeds along the route driven in ``direction``: made once for the
+        planner's route and the speed target's parameters, made again if either is
+        replaced."""
+        paths, profile = self.planner.paths, self.speed.params
+        made_for = self._curve_tables_for
+        if made_for is None or made_for[0] is not paths or made_for[1] is not profile:
+            self._curve_tables, self._curve_tables_for = {}, (paths, profile)
+        table = self._curve_tables.get(direction)
+        if table is None:
+            path = paths.path(direction)
+            table = CurveSpeedTable(path.arc_m, path_curvature(path.points_m), profile)
+            self._curve_tables[direction] = table
+        return table
 
     def _refused(
         self,

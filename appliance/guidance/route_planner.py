@@ -20,10 +20,10 @@ The paper's steps, with what each is for:
 
 Frames: the planner works in whatever frame the route and the anchor point share. With
 the continually varying local frame (``appliance.localization.frame_blend``) the cheap
-way is to keep the route in ENU, bring the anchor point and heading into ENU with the
-applied transform's inverse, and map only the short ``local_path_m`` window back to the
-local frame for the tracker (distances, cross-track and heading error are the same in
-both frames; the path heading differs by the transform's yaw).
+way is to keep the route in ENU and bring the anchor point and heading into ENU with the
+applied transform's inverse (distances, cross-track and heading error are the same in
+both frames; the path heading differs by the transform's yaw): the route, and all that
+is prepared from it once (``travel_path``), then never moves.
 
 Routes: consecutive duplicate points are removed here (``clean_route``); every index in
 the output refers to ``RoutePlanner.route_m``, the cleaned route.
@@ -36,22 +36,22 @@ from __future__ import annotations
 import bisect
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
-from enum import StrEnum
+from dataclasses import dataclass, field
+from functools import cached_property
 from typing import Literal
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from appliance.guidance.path_geometry import PathProjection
+from appliance.guidance.travel_path import TravelDirection, TravelPaths
 from appliance.localization.compound import wrap_angle_rad
 
 FloatArray = NDArray[np.float64]
 AllowedDirections = Literal["forward", "reverse", "both"]
-
-
-class TravelDirection(StrEnum):
-    FORWARD = "forward"  # in the order of the route's points
-    REVERSE = "reverse"
+# Above this many coarse groups the coarse pass works on arrays: a long route's first
+# search; the window around the last projection is a few dozen, done on floats.
+_VECTOR_GROUPS = 64
 
 
 @dataclass(frozen=True)
@@ -103,13 +103,37 @@ class PlannerOutput:
     path_heading_rad: float  # the path's tangent at the projection, in the travel direction
     heading_error_rad: float  # vehicle heading minus path heading, wrapped to [-π, π)
     distance_to_route_m: float
-    # The route from behind_m behind the projection to ahead_m ahead, in travel order,
-    # and the projection within it: what the pure pursuit tracker consumes.
-    local_path_m: FloatArray
-    local_segment_index: int
-    local_fraction: float
     jump_refused: bool  # this update's window answer was a jump, and was refused
     jumps_refused: int  # refusals since the last reset
+    # The route in travel order, and the local window's extent (behind_m, ahead_m): the
+    # window is cut out of the route only when it is asked for.
+    paths: TravelPaths = field(repr=False, compare=False)
+    window_m: tuple[float, float] = field(repr=False, compare=False)
+
+    @property
+    def travel_projection(self) -> PathProjection:
+        """The projection on ``paths.path(direction)``: what the tracker consumes."""
+        return self.paths.projection(self.direction, self.progress_m)
+
+    @cached_property
+    def _local(self) -> tuple[FloatArray, int, float]:
+        behind_m, ahead_m = self.window_m
+        return self.paths.window(self.arc_length_m, self.direction, behind_m, ahead_m)
+
+    @property
+    def local_path_m(self) -> FloatArray:
+        """The route from behind_m behind the projection to ahead_m ahead, in travel order
+        (Fig. 6's local window)."""
+        return self._local[0]
+
+    @property
+    def local_segment_index(self) -> int:
+        """The projection's segment in ``local_path_m``."""
+        return self._local[1]
+
+    @property
+    def local_fraction(self) -> float:
+        return self._local[2]
 
 
 @dataclass(frozen=True)
@@ -168,11 +192,15 @@ class RoutePlanner:
         ends = np.minimum(starts + stride, len(d))
         self._coarse_x, self._coarse_y = route[starts, 0].copy(), route[starts, 1].copy()
         self._coarse_span = self._cum_s[ends] - self._cum_s[starts]
+        self._coarse_xy_list: list[list[float]] = route[starts].tolist()
+        self._coarse_span_list: list[float] = self._coarse_span.tolist()
         # Python lists for the scalar look-ups: a numpy scalar costs more than the sum.
         self._cum_list: list[float] = self._cum_s.tolist()
         self._len_list: list[float] = self._len.tolist()
         self._xy_list: list[list[float]] = route.tolist()
         self._d_list: list[list[float]] = d.tolist()
+        self._len_sq_list: list[float] = self._len_sq.tolist()
+        self.paths = TravelPaths(route, self._len, self._cum_s)
         self.reset()
 
     def reset(self) -> None:
@@ -255,10 +283,20 @@ class RoutePlanner:
         """
         stride = self.params.coarse_stride
         g_lo, g_hi = lo_v // stride, (hi_v - 1) // stride + 1
-        distance = np.hypot(self._coarse_x[g_lo:g_hi] - px, self._coarse_y[g_lo:g_hi] - py)
-        kept = np.flatnonzero(distance - self._coarse_span[g_lo:g_hi] <= distance.min())
-        first = (g_lo + int(kept[0])) * stride
-        last = min((g_lo + int(kept[-1]) + 1) * stride, len(self._dx)) - 1
+        if g_hi - g_lo > _VECTOR_GROUPS:  # the whole route (the first search): numpy
+            distance = np.hypot(self._coarse_x[g_lo:g_hi] - px, self._coarse_y[g_lo:g_hi] - py)
+            kept = np.flatnonzero(distance - self._coarse_span[g_lo:g_hi] <= distance.min())
+            first_kept, last_kept = g_lo + int(kept[0]), g_lo + int(kept[-1])
+        else:  # the window around the last projection, each cycle: Python floats
+            coarse, span = self._coarse_xy_list, self._coarse_span_list
+            distances = [math.hypot(x - px, y - py) for x, y in coarse[g_lo:g_hi]]
+            nearest = min(distances)
+            kept_groups = [
+                g_lo + k for k, d in enumerate(distances) if d - span[g_lo + k] <= nearest
+            ]
+            first_kept, last_kept = kept_groups[0], kept_groups[-1]
+        first = first_kept * stride
+        last = min((last_kept + 1) * stride, len(self._dx)) - 1
         return first, last
 
     def _vertex_range(self, s_min: float, s_max: float) -> tuple[int, int]:
@@ -277,20 +315,29 @@ class RoutePlanner:
         s_min: float = -math.inf,
         s_max: float = math.inf,
     ) -> tuple[int, float]:
-        """The nearest point on segments first..last whose arc length is in [s_min, s_max]."""
-        sl = slice(first, last + 1)
-        ax, ay, dx, dy = self._x[sl], self._y[sl], self._dx[sl], self._dy[sl]
-        t = ((px - ax) * dx + (py - ay) * dy) / self._len_sq[sl]
-        if math.isinf(s_min) and math.isinf(s_max):
-            t = np.minimum(np.maximum(t, 0.0), 1.0)
-        else:
-            s0, length = self._cum_s[sl], self._len[sl]
-            t_lo = np.minimum(np.maximum((s_min - s0) / length, 0.0), 1.0)
-            t_hi = np.minimum(np.maximum((s_max - s0) / length, 0.0), 1.0)
-            t = np.minimum(np.maximum(t, t_lo), t_hi)
-        d2 = (ax + t * dx - px) ** 2 + (ay + t * dy - py) ** 2
-        k = int(d2.argmin())
-        return first + k, float(t[k])
+        """The nearest point on segments first..last whose arc length is in [s_min, s_max].
+
+        A loop over Python floats: the coarse pass leaves a few groups of segments, and
+        on so few numpy's cost per call is most of the work."""
+        xy, d, len_sq = self._xy_list, self._d_list, self._len_sq_list
+        bounded = not (math.isinf(s_min) and math.isinf(s_max))
+        best, best_t, best_d2 = first, 0.0, math.inf
+        for i in range(first, last + 1):
+            ax, ay = xy[i]
+            dx, dy = d[i]
+            t = ((px - ax) * dx + (py - ay) * dy) / len_sq[i]
+            if bounded:
+                s0, length = self._cum_list[i], self._len_list[i]
+                t_lo = min(max((s_min - s0) / length, 0.0), 1.0)
+                t_hi = min(max((s_max - s0) / length, 0.0), 1.0)
+                t = min(max(t, t_lo), t_hi)
+            else:
+                t = 0.0 if t < 0.0 else 1.0 if t > 1.0 else t
+            ex, ey = ax + t * dx - px, ay + t * dy - py
+            d2 = ex * ex + ey * ey
+            if d2 < best_d2:
+                best, best_t, best_d2 = i, t, d2
+        return best, best_t
 
     def _tangent(self, segment: int, fraction: float) -> tuple[float, float]:
         """The unit tangent in route order; at an inner vertex, the two segments' mean."""
@@ -328,7 +375,6 @@ class RoutePlanner:
         else:
             progress_m, sign, tx, ty = total - s, -1.0, -tx, -ty
         path_heading = _angle(tx, ty)
-        local_path, local_segment, local_fraction = self._window(s, direction)
         return PlannerOutput(
             segment_index=segment,
             fraction=fraction,
@@ -343,45 +389,11 @@ class RoutePlanner:
             path_heading_rad=path_heading,
             heading_error_rad=wrap_angle_rad(heading_rad - path_heading),
             distance_to_route_m=math.hypot(px - qx, py - qy),
-            local_path_m=local_path,
-            local_segment_index=local_segment,
-            local_fraction=local_fraction,
             jump_refused=jump_refused,
             jumps_refused=self._jumps_refused,
+            paths=self.paths,
+            window_m=(self.params.behind_m, self.params.ahead_m),
         )
-
-    def _window(self, s: float, direction: TravelDirection) -> tuple[FloatArray, int, float]:
-        """The route from behind_m behind ``s`` to ahead_m ahead, in travel order."""
-        p, total = self.params, self.route_length_m
-        if direction is TravelDirection.FORWARD:
-            s_lo, s_hi = max(0.0, s - p.behind_m), min(total, s + p.ahead_m)
-        else:
-            s_lo, s_hi = max(0.0, s - p.ahead_m), min(total, s + p.behind_m)
-        eps = 1e-9
-        inner_lo = bisect.bisect_right(self._cum_list, s_lo + eps)
-        inner_hi = bisect.bisect_left(self._cum_list, s_hi - eps)
-        path = np.empty((inner_hi - inner_lo + 2, 2))
-        path[0] = self._point_at(s_lo)
-        path[1:-1] = self.route_m[inner_lo:inner_hi]
-        path[-1] = self._point_at(s_hi)
-        arcs = np.concatenate(([s_lo], self._cum_s[inner_lo:inner_hi], [s_hi]))
-        if direction is TravelDirection.REVERSE:
-            path, arcs = path[::-1].copy(), s_hi - arcs[::-1]
-            travelled = s_hi - s
-        else:
-            arcs, travelled = arcs - s_lo, s - s_lo
-        k = int(arcs.searchsorted(travelled, side="right")) - 1
-        k = min(max(k, 0), len(path) - 2)
-        span = arcs[k + 1] - arcs[k]
-        local_fraction = min(max((travelled - arcs[k]) / span, 0.0), 1.0) if span > 0 else 0.0
-        path.flags.writeable = False
-        return path, k, float(local_fraction)
-
-    def _point_at(self, s: float) -> tuple[float, float]:
-        i = min(max(bisect.bisect_right(self._cum_list, s) - 1, 0), len(self._d_list) - 1)
-        f = min(max((s - self._cum_list[i]) / self._len_list[i], 0.0), 1.0)
-        (ax, ay), (dx, dy) = self._xy_list[i], self._d_list[i]
-        return ax + f * dx, ay + f * dy
 
 
 def _angle(x: float, y: float) -> float:

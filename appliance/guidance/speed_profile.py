@@ -38,10 +38,14 @@ throttle limit) and falls at up to 0.8 m/s².
 
 ``path_curvature`` gives the signed curvature of a polyline from the circle through each
 point and its neighbours (positive turning left, i.e. counter-clockwise in ENU).
+``CurveSpeedTable`` is the curve rule for one route driven one way, with what depends
+only on the route (each point's curve speed) worked out once: each cycle is then a table
+search and a few array operations on the preview's points.
 """
 
 from __future__ import annotations
 
+import bisect
 import math
 from dataclasses import dataclass, fields
 from enum import StrEnum
@@ -182,9 +186,62 @@ def curve_speed_limit_mps(curvature: ArrayLike, params: SpeedProfileParams) -> f
     curved = kappa > 0.0
     if not np.any(curved):
         return math.inf
-    curve_mps = np.sqrt(params.lateral_accel_mps2 / kappa[curved])
+    with np.errstate(over="ignore"):  # a curvature so slight its speed overflows: straight
+        curve_mps = np.sqrt(params.lateral_accel_mps2 / kappa[curved])
     allowed = braking_curve_mps(curve_mps, distance[in_view][curved], params)
     return float(np.min(allowed))
+
+
+class CurveSpeedTable:
+    """``curve_speed_limit_mps`` of the rows ``curvature_preview`` gives, for one path
+    (arc length and curvature at each point) and one set of parameters.
+
+    Each point's curve speed does not depend on where the vehicle is, so it is worked
+    out once; a cycle finds the preview's points by the arc length and applies the
+    braking curve to them alone. A different path or parameters is a different table.
+    """
+
+    def __init__(
+        self, arc_m: ArrayLike, curvature_1pm: ArrayLike, params: SpeedProfileParams
+    ) -> None:
+        arc = np.asarray(arc_m, dtype=np.float64)
+        kappa = np.abs(np.asarray(curvature_1pm, dtype=np.float64))
+        if arc.ndim != 1 or kappa.shape != arc.shape or len(arc) == 0:
+            raise ValueError("arc_m and curvature_1pm must be one value per point, not empty")
+        if not (np.all(np.isfinite(arc)) and np.all(np.isfinite(kappa))):
+            raise ValueError("arc_m and curvature_1pm must be finite")
+        if np.any(np.diff(arc) < 0.0):
+            raise ValueError("arc_m must not decrease")
+        self.params = params
+        self._arc = arc
+        self._arc_list: list[float] = arc.tolist()
+        curved = kappa > 0.0
+        curve_mps = np.full_like(kappa, math.inf)
+        with np.errstate(over="ignore"):  # so slight its speed overflows: straight
+            curve_mps[curved] = np.sqrt(params.lateral_accel_mps2 / kappa[curved])
+        self._curve_mps = curve_mps
+        self._lag_mps = params.comfort_decel_mps2 * params.response_time_s
+        # braking_curve_mps's terms that do not depend on the distance (inf: straight)
+        with np.errstate(over="ignore"):
+            self._root_base = self._lag_mps**2 + curve_mps**2
+        self._two_a_mps2 = 2.0 * params.comfort_decel_mps2
+
+    def limit_mps(self, along_m: float) -> float:
+        """The curve limit for a vehicle ``along_m`` along the path. ``inf``: no curve."""
+        if not math.isfinite(along_m):
+            raise ValueError("along_m must be finite")
+        arc, preview_m = self._arc_list, self.params.preview_m
+        first = max(bisect.bisect_right(arc, along_m) - 1, 0)
+        last = bisect.bisect_right(arc, along_m + preview_m)
+        while last > first and arc[last - 1] - along_m > preview_m:
+            last -= 1  # rounding: in view means no more than preview_m ahead
+        if last <= first:
+            return math.inf
+        distance = np.maximum(self._arc[first:last] - along_m, 0.0)
+        now_mps = -self._lag_mps + np.sqrt(
+            self._root_base[first:last] + self._two_a_mps2 * distance
+        )
+        return float(np.min(np.maximum(now_mps, self._curve_mps[first:last])))
 
 
 def route_end_speed_limit_mps(remaining_m: float, params: SpeedProfileParams) -> float:
@@ -192,7 +249,10 @@ def route_end_speed_limit_mps(remaining_m: float, params: SpeedProfileParams) ->
     if math.isnan(remaining_m):
         raise ValueError("remaining_m must not be NaN")
     to_stop_m = max(remaining_m - params.stop_margin_m, 0.0)
-    return float(braking_curve_mps(np.array([0.0]), np.array([to_stop_m]), params)[0])
+    # braking_curve_mps to a stop, on floats (one value: numpy would cost more than it)
+    a_mps2 = params.comfort_decel_mps2
+    lag_mps = a_mps2 * params.response_time_s
+    return max(-lag_mps + math.sqrt(lag_mps**2 + 2.0 * a_mps2 * to_stop_m), 0.0)
 
 
 def target_with_reason(
@@ -204,13 +264,31 @@ def target_with_reason(
 ) -> tuple[float, SpeedLimiter]:
     """The target speed and the rule that set it. ``remaining_m=None``: no end in view
     (a loop). Negative speeds mean zero: reversing is not decided here."""
+    _check_speeds(set_speed_mps, speed_limit_mps)
+    curve_mps = curve_speed_limit_mps(curvature_ahead, params)
+    return lowest_target(set_speed_mps, speed_limit_mps, curve_mps, remaining_m, params)
+
+
+def _check_speeds(set_speed_mps: float, speed_limit_mps: float | None) -> None:
     limit_ok = speed_limit_mps is None or math.isfinite(speed_limit_mps)
     if not (math.isfinite(set_speed_mps) and limit_ok):
         raise ValueError("set_speed_mps and speed_limit_mps must be finite")
+
+
+def lowest_target(
+    set_speed_mps: float,
+    speed_limit_mps: float | None,
+    curve_limit_mps: float,
+    remaining_m: float | None,
+    params: SpeedProfileParams,
+) -> tuple[float, SpeedLimiter]:
+    """``target_with_reason`` with the curve rule's answer given (``curve_speed_limit_mps``
+    or a ``CurveSpeedTable``'s)."""
+    _check_speeds(set_speed_mps, speed_limit_mps)
     candidates = [(max(set_speed_mps, 0.0), SpeedLimiter.SET_SPEED)]
     if speed_limit_mps is not None:
         candidates.append((max(speed_limit_mps, 0.0), SpeedLimiter.SPEED_LIMIT))
-    candidates.append((curve_speed_limit_mps(curvature_ahead, params), SpeedLimiter.CURVE))
+    candidates.append((curve_limit_mps, SpeedLimiter.CURVE))
     if remaining_m is not None:
         candidates.append((route_end_speed_limit_mps(remaining_m, params), SpeedLimiter.ROUTE_END))
     return min(candidates, key=lambda c: c[0])  # the first wins a tie
@@ -252,17 +330,36 @@ class SpeedTarget:
         remaining_m: float | None,
         now_s: float,
     ) -> float:
-        p = self.params
-        wanted, self.limited_by = target_with_reason(
-            set_speed_mps, speed_limit_mps, curvature_ahead, remaining_m, p
+        wanted = target_with_reason(
+            set_speed_mps, speed_limit_mps, curvature_ahead, remaining_m, self.params
         )
-        self.unlimited_mps = wanted
+        return self._follow(wanted, now_s)
+
+    def update_with_curve_limit(
+        self,
+        set_speed_mps: float,
+        speed_limit_mps: float | None,
+        curve_limit_mps: float,
+        remaining_m: float | None,
+        now_s: float,
+    ) -> float:
+        """``update`` with the curve rule's answer given (a ``CurveSpeedTable``'s)."""
+        wanted = lowest_target(
+            set_speed_mps, speed_limit_mps, curve_limit_mps, remaining_m, self.params
+        )
+        return self._follow(wanted, now_s)
+
+    def _follow(self, wanted: tuple[float, SpeedLimiter], now_s: float) -> float:
+        """The target moved towards ``wanted`` within its rise and fall limits."""
+        p = self.params
+        self.unlimited_mps, self.limited_by = wanted
         if not math.isfinite(now_s):
             raise ValueError("now_s must be finite")
         last, self._last_now_s = self._last_now_s, now_s
         dt_s = 0.0 if last is None else min(max(now_s - last, 0.0), p.max_step_dt_s)
         change = min(
-            max(wanted - self._target_mps, -p.target_fall_mps2 * dt_s), p.target_rise_mps2 * dt_s
+            max(self.unlimited_mps - self._target_mps, -p.target_fall_mps2 * dt_s),
+            p.target_rise_mps2 * dt_s,
         )
         self._target_mps += change
         return self._target_mps

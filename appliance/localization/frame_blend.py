@@ -46,14 +46,15 @@ Pure: no I/O; time is an argument; ``current(now_s)`` advances the ramp to ``now
 from __future__ import annotations
 
 import math
-from collections import deque
 from dataclasses import dataclass, replace
 from enum import StrEnum
+from typing import cast
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from appliance.localization.compound import wrap_angle_rad
+from appliance.localization.fix_pairs import PairColumns
 from drivers.geometry import Pose2D
 
 FloatArray = NDArray[np.float64]
@@ -149,7 +150,7 @@ class LocalGlobalTransform:
         self.reset()
 
     def reset(self) -> None:
-        self._pairs: deque[_Pair] = deque(maxlen=self.params.max_pairs)
+        self._pairs = PairColumns(self.params.max_pairs)
         # Fixes that did not land on the current regime: (pair, nearest regime or None,
         # residual), waiting for ``jump_persist_fixes`` in a row to agree.
         self._candidates: list[tuple[_Pair, int | None, tuple[float, float]]] = []
@@ -292,9 +293,10 @@ class LocalGlobalTransform:
         return len(self._pairs) < self.params.settle_fixes
 
     def _take(self, pair: _Pair) -> None:
-        self._pairs.append(pair)
-        while self._pairs[0].time_s < pair.time_s - self.params.window_s:
-            self._pairs.popleft()
+        self._pairs.append(
+            pair.time_s, pair.global_xy, pair.local_xy, pair.yaw_diff_rad, pair.weight, pair.segment
+        )
+        self._pairs.drop_older_than(pair.time_s - self.params.window_s)
 
     def _residual(self, pair: _Pair, time_s: float) -> tuple[tuple[float, float], float]:
         """Where the estimate puts the fix, less where odometry says it was (local frame)."""
@@ -321,48 +323,48 @@ class LocalGlobalTransform:
     def _fit(self, now_s: float) -> None:
         """Lines in time, one offset per segment and one drift rate, at the newest pair."""
         p = self.params
-        pairs = list(self._pairs)
-        t_ref = pairs[-1].time_s
-        tau = np.array([q.time_s - t_ref for q in pairs])
-        w = np.array([q.weight for q in pairs])
-        regimes, seg = np.unique([q.segment for q in pairs], return_inverse=True)
-        seg = seg.reshape(-1)
-        ref = pairs[-1].yaw_diff_rad
-        yaw = np.array([ref + wrap_angle_rad(q.yaw_diff_rad - ref) for q in pairs])
-        yaw_w = w / (w.mean() * p.heading_sigma_rad**2)
-        yaw_rate = _shared_rate(tau, yaw, yaw_w, seg, p.yaw_drift_prior_rps)
-        yaw_i = _offsets(tau, yaw, yaw_w, seg, yaw_rate)[seg] + yaw_rate * tau
+        pairs = self._pairs
+        times = pairs.time_s
+        t_ref = float(times[-1])
+        tau = times - t_ref
+        w = pairs.weight
+        regimes, seg, counts = pairs.segments()
+        yaw_diff = pairs.yaw_diff_rad
+        ref = float(yaw_diff[-1])
+        yaw = ref + ((yaw_diff - ref + math.pi) % math.tau - math.pi)  # wrap_angle_rad
+        mean_w = np.add.reduce(w) / len(w)  # w.mean(), without its wrapper
+        yaw_groups = _Groups(w / (mean_w * p.heading_sigma_rad**2), seg, tau)
+        yaw_rate = yaw_groups.shared_rate(yaw, p.yaw_drift_prior_rps)
+        yaw_i = yaw_groups.per_pair(yaw_groups.offsets(yaw, yaw_rate)) + yaw_rate * tau
         # Each pair's word on where the newest fix's global point is in the local frame
         # at t_ref. A yaw drift turns the local frame about its origin, which moves that
         # point by yaw_rate × J R (g − g_ref) per second: integrated along the fixes, so
         # a gyro bias is no translation drift and the rate below is odometry's own.
-        g = np.array([q.global_xy for q in pairs])
-        centre = g[-1]
-        rel = g - centre
+        # (x and y as separate columns: the fit is many small array operations.)
+        global_x, global_y = pairs.global_x, pairs.global_y
+        centre = (float(global_x[-1]), float(global_y[-1]))
+        rel_x, rel_y = global_x - centre[0], global_y - centre[1]
         cos, sin = np.cos(yaw_i), np.sin(yaw_i)
-        turned = np.column_stack(
-            [cos * rel[:, 0] - sin * rel[:, 1], sin * rel[:, 0] + cos * rel[:, 1]]
-        )
-        swept = _integral_to_end(tau, np.column_stack([-turned[:, 1], turned[:, 0]]))
-        m = np.array([q.local_xy for q in pairs]) - turned - yaw_rate * swept
+        turned_x, turned_y = cos * rel_x - sin * rel_y, sin * rel_x + cos * rel_y
+        step_s = tau[1:] - tau[:-1]
+        m_x = pairs.local_x - turned_x - yaw_rate * _integral_to_end(step_s, -turned_y)
+        m_y = pairs.local_y - turned_y - yaw_rate * _integral_to_end(step_s, turned_x)
         prior = p.translation_drift_prior_mps
-        velocity = (
-            _shared_rate(tau, m[:, 0], w, seg, prior),
-            _shared_rate(tau, m[:, 1], w, seg, prior),
-        )
+        groups = _Groups(w, seg, tau)
+        velocity = (groups.shared_rate(m_x, prior), groups.shared_rate(m_y, prior))
         trusted = self._trusted_offset(
-            [int(r) for r in regimes],
-            np.bincount(seg),
-            np.bincount(seg, weights=w).astype(np.float64),
-            _offsets(tau, m[:, 0], w, seg, velocity[0]),
-            _offsets(tau, m[:, 1], w, seg, velocity[1]),
+            regimes,
+            counts,
+            groups.total,
+            groups.offsets(m_x, velocity[0]),
+            groups.offsets(m_y, velocity[1]),
         )
         before = self._target(now_s) if self._estimate is not None else None
         self._estimate = _Estimate(
             t_ref,
             float(yaw_i[-1]),
             float(yaw_rate),
-            (float(centre[0]), float(centre[1])),
+            centre,
             trusted,
             velocity,
         )
@@ -503,33 +505,47 @@ def _points(points_m: ArrayLike) -> FloatArray:
     return p
 
 
-def _segment_means(values: FloatArray, w: FloatArray, seg: NDArray[np.int_]) -> FloatArray:
-    return np.bincount(seg, weights=w * values) / np.bincount(seg, weights=w)
+class _Groups:
+    """Weighted means per segment over one set of weights and times: what the weights
+    and the times alone give (each segment's total weight, the times about their
+    segment's mean) is worked out once per fit, not once per fitted quantity."""
+
+    def __init__(self, w: FloatArray, seg: NDArray[np.intp], tau: FloatArray) -> None:
+        self.w, self.seg, self.tau = w, seg, tau
+        self.total = cast(FloatArray, np.bincount(seg, weights=w))  # weighted: floats
+        self._one = len(self.total) == 1
+        self._tc = tau - self.per_pair(self.means(tau))
+        self._wtc = w * self._tc
+        self._wtc_tc = float(self._wtc @ self._tc)
+
+    def per_pair(self, per_segment: FloatArray) -> FloatArray:
+        """Each pair's segment's value (one segment: broadcast as it is)."""
+        return per_segment if self._one else per_segment[self.seg]
+
+    def means(self, values: FloatArray) -> FloatArray:
+        result: FloatArray = np.bincount(self.seg, weights=self.w * values) / self.total
+        return result
+
+    def shared_rate(self, y: FloatArray, prior_sigma: float) -> float:
+        """The slope of y in time shared by each segment's line: weighted least squares
+        with a zero-mean prior of σ ``prior_sigma`` on it, so a short window fits no rate
+        from noise."""
+        yc = y - self.per_pair(self.means(y))
+        return float(self._wtc @ yc / (self._wtc_tc + prior_sigma**-2))
+
+    def offsets(self, y: FloatArray, rate: float) -> FloatArray:
+        """Each segment's value at tau = 0, given the shared rate."""
+        return self.means(y - rate * self.tau)
 
 
-def _shared_rate(
-    tau: FloatArray, y: FloatArray, w: FloatArray, seg: NDArray[np.int_], prior_sigma: float
-) -> float:
-    """The slope of y in time shared by each segment's line: weighted least squares with a
-    zero-mean prior of σ ``prior_sigma`` on it, so a short window fits no rate from noise."""
-    tc = tau - _segment_means(tau, w, seg)[seg]
-    yc = y - _segment_means(y, w, seg)[seg]
-    return float((w * tc) @ yc / ((w * tc) @ tc + prior_sigma**-2))
+_ZERO = np.zeros(1)
 
 
-def _integral_to_end(tau: FloatArray, h: FloatArray) -> FloatArray:
-    """∫ h dt from each sample's time to the last one (trapezoids between samples)."""
-    pieces = 0.5 * (h[:-1] + h[1:]) * np.diff(tau)[:, None]
-    out = np.zeros_like(h)
-    out[:-1] = np.cumsum(pieces[::-1], axis=0)[::-1]
-    return out
-
-
-def _offsets(
-    tau: FloatArray, y: FloatArray, w: FloatArray, seg: NDArray[np.int_], rate: float
-) -> FloatArray:
-    """Each segment's value at tau = 0, given the shared rate."""
-    return _segment_means(y - rate * tau, w, seg)
+def _integral_to_end(step_s: FloatArray, h: FloatArray) -> FloatArray:
+    """∫ h dt from each sample's time to the last one (trapezoids between samples
+    ``step_s`` apart)."""
+    pieces = 0.5 * (h[:-1] + h[1:]) * step_s
+    return np.concatenate((pieces[::-1].cumsum()[::-1], _ZERO))
 
 
 def _extrapolated(e: _Estimate, tau_s: float) -> tuple[float, float, float]:

@@ -14,22 +14,24 @@ from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
 from appliance.config import load_config
+from appliance.guidance.path_geometry import (
+    PathProjection,
+    Polyline,
+    goal_shift_m,
+    path_curvature_per_m,
+    point_at_arc_length,
+    project_onto_path,
+    signed_cross_track_m,
+)
 from appliance.guidance.pure_pursuit import (
     LookaheadSchedule,
     PurePursuitTracker,
     PursuitParams,
 )
 from appliance.guidance.pure_pursuit_math import (
-    PathProjection,
-    Polyline,
     counter_steer_tan_ratio,
     eq2_vs_eq3_difference,
-    goal_shift_m,
-    path_curvature_per_m,
-    point_at_arc_length,
     predict_pose,
-    project_onto_path,
-    signed_cross_track_m,
     solve_eq2,
     steer_eq2_rad,
     steer_eq3_rad,

@@ -19,11 +19,13 @@ from hypothesis import strategies as st
 from appliance.config import load_config
 from appliance.guidance.pedal_speed import PedalSpeedController, PedalSpeedParams
 from appliance.guidance.speed_profile import (
+    CurveSpeedTable,
     SpeedLimiter,
     SpeedProfileParams,
     SpeedTarget,
     braking_distance_m,
     curvature_preview,
+    curve_speed_limit_mps,
     path_curvature,
     route_end_speed_limit_mps,
     target_speed_mps,
@@ -239,6 +241,59 @@ def test_bad_input_is_refused(
 def test_bad_parameters_are_refused(change: dict[str, float]) -> None:
     with pytest.raises(ValueError, match="must be finite"):
         replace(PARAMS, **change)
+
+
+@settings(max_examples=300, deadline=None)
+@given(
+    steps=st.lists(st.tuples(st.floats(0.05, 8.0), st.floats(-0.6, 0.6)), min_size=1, max_size=120),
+    along_m=st.floats(-1.0, 400.0),
+    lateral_accel_mps2=st.floats(0.2, 3.0),
+    comfort_decel_mps2=st.floats(0.2, 2.0),
+    preview_m=st.floats(0.5, 60.0),
+    response_time_s=st.floats(0.0, 3.0),
+)
+def test_the_curve_table_is_the_curve_rule_on_the_preview(
+    steps: list[tuple[float, float]],
+    along_m: float,
+    lateral_accel_mps2: float,
+    comfort_decel_mps2: float,
+    preview_m: float,
+    response_time_s: float,
+) -> None:
+    """The table (curve speeds made once per path) against the rule on the rows
+    curvature_preview cuts for the same place: random curvy paths, straight pieces,
+    every place along them and past their ends."""
+    params = replace(
+        PARAMS,
+        lateral_accel_mps2=lateral_accel_mps2,
+        comfort_decel_mps2=comfort_decel_mps2,
+        preview_m=preview_m,
+        response_time_s=response_time_s,
+    )
+    heading = np.cumsum([turn if turn > -0.3 else 0.0 for _, turn in steps])  # some straight
+    lengths = np.array([length for length, _ in steps])
+    points = np.vstack(([0.0, 0.0], np.cumsum(
+        np.column_stack((lengths * np.cos(heading), lengths * np.sin(heading))), axis=0
+    )))  # fmt: skip
+    arc = np.concatenate(([0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))))
+    kappa = path_curvature(points)
+    table = CurveSpeedTable(arc, kappa, params)
+    plain = curve_speed_limit_mps(curvature_preview(points, along_m, preview_m, kappa), params)
+    fast = table.limit_mps(along_m)
+    if math.isinf(plain):
+        assert math.isinf(fast)
+    else:
+        assert fast == pytest.approx(plain, rel=1e-12, abs=1e-12)
+
+
+def test_the_curve_table_refuses_what_is_no_path() -> None:
+    for arc, kappa in (([0.0, 1.0], [0.0]), ([], []), ([0.0, math.nan], [0.0, 0.0])):
+        with pytest.raises(ValueError, match=r"\w"):
+            CurveSpeedTable(arc, kappa, PARAMS)
+    with pytest.raises(ValueError, match="decrease"):
+        CurveSpeedTable([0.0, 2.0, 1.0], [0.0, 0.1, 0.0], PARAMS)
+    with pytest.raises(ValueError, match="finite"):
+        CurveSpeedTable([0.0, 1.0], [0.1, 0.1], PARAMS).limit_mps(math.nan)
 
 
 # -- the target over time ------------------------------------------------------------------

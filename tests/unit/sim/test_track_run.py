@@ -4,15 +4,18 @@ the truth (cross-track at the anchor against the course as given, not the planne
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 import numpy as np
 import pytest
 from click.testing import CliRunner
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from appliance.cli.sim_track import track
 from appliance.config import load_config
 from appliance.sim.courses import arc_course, integrate_curvature, straight_course
-from appliance.sim.track_run import TrackResult, TrackRunParams, run_track
+from appliance.sim.track_run import TrackResult, TrackRunParams, _Truth, run_track
 
 HUSKY = load_config("husky")
 MPH_5, MPH_10 = 2.235, 4.47
@@ -149,3 +152,50 @@ def test_the_command_line_reports_json() -> None:
     document = json.loads(outcome.output)
     assert document["completed"] and document["rms_cross_track_m"] < 0.05
     assert document["max_steer_rate_deg_per_s"] <= HUSKY.limits.max_steer_rate_deg_per_s + 1e-6
+
+
+def _plain_truth(course: np.ndarray) -> Callable[[float, float], tuple[float, float]]:
+    """The truth's search as arrays over its whole window (what the grouped search skips
+    groups of must not change)."""
+    start, delta = course[:-1], np.diff(course, axis=0)
+    length = np.hypot(delta[:, 0], delta[:, 1])
+    keep = length > 1e-9
+    start, delta, length = start[keep], delta[keep], length[keep]
+    unit = delta / length[:, None]
+    arc_end = np.cumsum(length)
+    segment = [0]
+
+    def update(x_m: float, y_m: float) -> tuple[float, float]:
+        lo, hi = max(segment[0] - 4, 0), min(segment[0] + 40, len(length))
+        rel = np.array([x_m, y_m]) - start[lo:hi]
+        along = np.clip(np.einsum("ij,ij->i", rel, unit[lo:hi]), 0.0, length[lo:hi])
+        gap = np.hypot(*(np.array([x_m, y_m]) - (start[lo:hi] + along[:, None] * unit[lo:hi])).T)
+        best = int(np.argmin(gap))
+        i = segment[0] = lo + best
+        cross = float(unit[i, 0] * rel[best, 1] - unit[i, 1] * rel[best, 0])
+        return cross, float(arc_end[-1] - (arc_end[i] - length[i] + along[best]))
+
+    return update
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    turns=st.lists(st.floats(-0.6, 0.6), min_size=30, max_size=200),
+    spacing_m=st.floats(0.2, 2.0),
+    wander_m=st.lists(st.floats(-3.0, 3.0), min_size=40, max_size=40),
+)
+def test_the_truth_finds_the_nearest_segment_of_its_window(
+    turns: list[float], spacing_m: float, wander_m: list[float]
+) -> None:
+    heading = np.cumsum(turns)
+    course = np.vstack(
+        ([0.0, 0.0], np.cumsum(spacing_m * np.column_stack((np.cos(heading), np.sin(heading))), 0))
+    )
+    truth, plain = _Truth(course), _plain_truth(course)
+    total = len(turns) * spacing_m
+    for k, off in enumerate(wander_m):  # along the course, wandering off it both ways
+        s = total * k / len(wander_m)
+        i = min(int(s / spacing_m), len(turns) - 1)
+        x, y = course[i] + off * np.array([-math.sin(heading[i]), math.cos(heading[i])])
+        got, want = truth.update(float(x), float(y)), plain(float(x), float(y))
+        assert got == pytest.approx(want, abs=1e-9)
