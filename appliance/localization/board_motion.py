@@ -27,6 +27,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from appliance.localization.compound import wrap_angle_rad
+from appliance.localization.ekf_floats import Matrix, inverse_3x3
 from appliance.localization.launcher_ekf import BodyMotion
 
 FloatArray = NDArray[np.float64]
@@ -124,7 +125,8 @@ class _WindowMotion(NamedTuple):
     older: BoardSighting
     newer: BoardSighting
     motion: BodyMotion | None
-    information: FloatArray | None  # the inverse of the motion's covariance
+    information: Matrix | None  # the inverse of the motion's covariance, as floats
+    velocity: list[float]  # the motion's velocity, as floats
 
 
 class BoardMotion:
@@ -154,7 +156,7 @@ class BoardMotion:
     def motion(self, now_s: float) -> BodyMotion | None:
         """The inverse-covariance fusion of every scanner's window, or None when no
         scanner has two recent sightings."""
-        estimates: list[tuple[BodyMotion, FloatArray]] = []  # with their information
+        estimates: list[_WindowMotion] = []
         for sensor, history in self._history.items():
             if len(history) < 2 or now_s - history[-1].t_s > self.params.max_age_s:
                 continue
@@ -162,24 +164,42 @@ class BoardMotion:
                 continue
             found = self._window(sensor, history[0], history[-1])
             if found.motion is not None and found.information is not None:
-                estimates.append((found.motion, found.information))
+                estimates.append(found)
         if not estimates:
             return None
         if len(estimates) == 1:
-            return estimates[0][0]
-        information = sum(info for _, info in estimates)
-        covariance = np.asarray(np.linalg.inv(information), dtype=np.float64)
-        weighted = sum(info @ e.velocity for e, info in estimates)
-        correlation_s = max(e.correlation_time_s for e, _ in estimates)
-        return BodyMotion(covariance @ weighted, covariance, correlation_s)
+            return estimates[0].motion
+        return _fuse(estimates)
 
     def _window(self, sensor: str, older: BoardSighting, newer: BoardSighting) -> _WindowMotion:
         kept = self._window_motion.get(sensor)
         if kept is not None and kept.older is older and kept.newer is newer:
             return kept
         found = motion_between(older, newer, self.params)
-        information = (
-            None if found is None else np.asarray(np.linalg.inv(found.covariance), dtype=np.float64)
-        )
-        kept = self._window_motion[sensor] = _WindowMotion(older, newer, found, information)
+        information = None if found is None else inverse_3x3(found.covariance.tolist())
+        velocity = [] if found is None else found.velocity.tolist()
+        kept = _WindowMotion(older, newer, found, information, velocity)
+        self._window_motion[sensor] = kept
         return kept
+
+
+def _fuse(estimates: list[_WindowMotion]) -> BodyMotion | None:
+    """The inverse-covariance fusion of windows' motions, ``(Σ Iᵢ)⁻¹ Σ Iᵢ vᵢ``, in floats
+    (3x3: numpy's inverses and products cost more than their arithmetic)."""
+    total = [[0.0, 0.0, 0.0], [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]]
+    weighted = [0.0, 0.0, 0.0]
+    for window in estimates:
+        information, velocity = window.information, window.velocity
+        assert information is not None
+        for i in range(3):
+            row = information[i]
+            total_row = total[i]
+            for j in range(3):
+                total_row[j] += row[j]
+            weighted[i] += row[0] * velocity[0] + row[1] * velocity[1] + row[2] * velocity[2]
+    covariance = inverse_3x3(total)
+    if covariance is None:
+        return None
+    fused = [sum(covariance[i][j] * weighted[j] for j in range(3)) for i in range(3)]
+    correlation_s = max(w.motion.correlation_time_s for w in estimates if w.motion is not None)
+    return BodyMotion(np.array(fused), np.array(covariance), correlation_s)

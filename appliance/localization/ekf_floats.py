@@ -157,3 +157,22 @@ def _sandwich(j: Matrix, m: Matrix) -> Matrix:
             t20 * j20 + t21 * j21 + t22 * j22,
         ],
     ]
+
+
+def inverse_3x3(m: Matrix) -> Matrix | None:
+    """The inverse of a 3x3 matrix by cofactors; None if singular or not finite. (For
+    the well-conditioned covariances and informations of the filter, within a few
+    rounding errors of ``numpy.linalg.inv``.)"""
+    (a, b, c), (d, e, f), (g, h, i) = m
+    co_a, co_b, co_c = e * i - f * h, f * g - d * i, d * h - e * g
+    det = a * co_a + b * co_b + c * co_c
+    if not (det != 0.0 and math.isfinite(det)):
+        return None
+    inverse = [
+        [co_a / det, (c * h - b * i) / det, (b * f - c * e) / det],
+        [co_b / det, (a * i - c * g) / det, (c * d - a * f) / det],
+        [co_c / det, (b * g - a * h) / det, (a * e - b * d) / det],
+    ]
+    if not all(math.isfinite(v) for row in inverse for v in row):
+        return None
+    return inverse

@@ -111,11 +111,11 @@ def cylinder_measurement(
     ``(x_L, y_L)``); the bearing is in the scanner's frame (x out of its window), so the
     paper's ``+ π/2`` (the device's angle convention) is already taken out upstream.
     """
-    z, jac = _cylinder_terms(state, landmark_xy, sensor)
+    z, jac = cylinder_terms(state, landmark_xy, sensor)
     return np.array(z), np.array(jac)
 
 
-def _cylinder_terms(
+def cylinder_terms(
     state: Sequence[float] | FloatArray, landmark_xy: tuple[float, float], sensor: Pose2D
 ) -> Terms:
     """`cylinder_measurement` as floats: the association works out the NIS of every
@@ -153,7 +153,7 @@ def _board_terms(state: Sequence[float] | FloatArray) -> Terms:
 
 
 def _cylinder_model(landmark_xy: tuple[float, float], sensor: Pose2D) -> Model:
-    return lambda state: _cylinder_terms(state, landmark_xy, sensor)
+    return lambda state: cylinder_terms(state, landmark_xy, sensor)
 
 
 def _well_formed(z: FloatArray, r_cov: FloatArray) -> bool:
