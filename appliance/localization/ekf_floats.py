@@ -12,6 +12,7 @@ Matrices are lists of rows; nothing here allocates an array.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 Matrix = list[list[float]]
 
@@ -112,8 +113,8 @@ def joseph_update(
 
 def propagate(p: Matrix, j_pose: Matrix, j_delta: Matrix, q: Matrix) -> Matrix:
     """``J_pose P J_poseᵀ + J_delta Q J_deltaᵀ`` (all 3x3): the prediction's covariance."""
-    a = _sandwich(j_pose, p)
-    b = _sandwich(j_delta, q)
+    a = sandwich(j_pose, p)
+    b = sandwich(j_delta, q)
     return [
         [a[0][0] + b[0][0], a[0][1] + b[0][1], a[0][2] + b[0][2]],
         [a[1][0] + b[1][0], a[1][1] + b[1][1], a[1][2] + b[1][2]],
@@ -121,7 +122,7 @@ def propagate(p: Matrix, j_pose: Matrix, j_delta: Matrix, q: Matrix) -> Matrix:
     ]
 
 
-def _sandwich(j: Matrix, m: Matrix) -> Matrix:
+def sandwich(j: Sequence[Sequence[float]], m: Sequence[Sequence[float]]) -> Matrix:
     """``J M Jᵀ`` of 3x3 matrices, written out."""
     (j00, j01, j02), (j10, j11, j12), (j20, j21, j22) = j
     (m00, m01, m02), (m10, m11, m12), (m20, m21, m22) = m

@@ -27,7 +27,8 @@ from appliance.localization.board_motion import (
     BoardMotion,
     BoardSighting,
 )
-from appliance.localization.compound import compound, compound_jacobians, wrap_angle_rad
+from appliance.localization.compound import wrap_angle_rad
+from appliance.localization.ekf_floats import sandwich
 from appliance.localization.initial_pose import (
     InitialPose,
     InitialPoseParams,
@@ -365,8 +366,11 @@ class LauncherLocalizer:
                 None, None, {}, *counts,
             )  # fmt: skip
         state, cov = self.ekf.state, self.ekf.covariance
-        sigma_m = math.sqrt(max(float(np.max(np.linalg.eigvalsh(cov[:2, :2]))), 0.0))
-        sigma_yaw = math.sqrt(max(float(cov[2, 2]), 0.0))
+        (pxx, pxy, _), (_, pyy, _), (_, _, pyaw) = cov.tolist()
+        # The larger eigenvalue of the position's 2x2 covariance, in closed form.
+        largest = 0.5 * (pxx + pyy) + math.hypot(0.5 * (pxx - pyy), pxy)
+        sigma_m = math.sqrt(max(largest, 0.0))
+        sigma_yaw = math.sqrt(max(pyaw, 0.0))
         silent_s = now_s - self._last_accept_s
         if silent_s > p.lost_after_s:
             status, reason = LocalizationStatus.LOST, f"no landmark accepted for {silent_s:.2f} s"
@@ -389,10 +393,14 @@ class LauncherLocalizer:
         quality = 0
         if status is not LocalizationStatus.LOST:
             quality = round(100.0 * max(0.0, min(1.0, 1.0 - sigma_m / p.lost_sigma_m)))
-        back = np.array([-self.origin_in_vehicle.x_m, -self.origin_in_vehicle.y_m, 0.0])
-        centre = compound(state, back)
-        j_pose, _ = compound_jacobians(state, back)
-        centre_cov = j_pose @ cov @ j_pose.T
+        # The vehicle's centre: O_f ⊕ (−origin), its covariance through the compounding's
+        # Jacobian (``compound``, ``compound_jacobians``), written out in floats.
+        x, y, yaw = self.ekf.state_floats
+        bx, by = -self.origin_in_vehicle.x_m, -self.origin_in_vehicle.y_m
+        c, s = math.cos(yaw), math.sin(yaw)
+        centre = (x + c * bx - s * by, y + s * bx + c * by, wrap_angle_rad(yaw + 0.0))
+        lever = ((1.0, 0.0, -s * bx - c * by), (0.0, 1.0, c * bx - s * by), (0.0, 0.0, 1.0))
+        centre_cov = np.array(sandwich(lever, cov.tolist()))
         return LocalizationEstimate(
             status,
             reason,
@@ -400,7 +408,7 @@ class LauncherLocalizer:
             self.ekf.t_s,
             Pose2D(*map(float, state)),
             cov,
-            Pose2D(*map(float, centre)),
+            Pose2D(*centre),
             centre_cov,
             dict(self.ekf.last_nis),
             *counts,
