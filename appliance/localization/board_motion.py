@@ -64,14 +64,13 @@ class BoardMotionParams:
     unknown_along_sigma_mps: float = 0.3
 
 
-def _along(direction: FloatArray, end_a: BoardEnd, end_b: BoardEnd, dyaw: float) -> float:
+def _along(direction: tuple[float, float], end_a: BoardEnd, end_b: BoardEnd, dyaw: float) -> float:
+    """How far ``end_a`` is from ``end_b`` (turned by ``dyaw`` into a's frame) along the
+    board's ``direction``."""
     c, s = math.cos(dyaw), math.sin(dyaw)
-    # end_a less end_b turned into a's frame, worked out in floats as numpy would.
-    apart = [
-        end_a.x_m - (c * end_b.x_m - s * end_b.y_m),
-        end_a.y_m - (s * end_b.x_m + c * end_b.y_m),
-    ]
-    return float(direction @ np.array(apart))
+    apart_x = end_a.x_m - (c * end_b.x_m - s * end_b.y_m)
+    apart_y = end_a.y_m - (s * end_b.x_m + c * end_b.y_m)
+    return direction[0] * apart_x + direction[1] * apart_y
 
 
 def motion_between(
@@ -79,43 +78,44 @@ def motion_between(
 ) -> BodyMotion | None:
     """O_f's velocity in its own frame from two sightings of the board, with covariance.
 
-    Element by element in floats (the same roundings as numpy's elementwise operations:
-    a few small arrays cost more than their arithmetic); products of vectors and
-    matrices stay numpy's, whose sums may round differently."""
+    In floats (asked at every scan; a few small arrays cost more than their arithmetic):
+    the covariance is ``B diag(var_normal, var_along) Bᵀ`` with ``B`` the board's normal
+    and direction as columns, written out."""
     dt_s = newer.t_s - older.t_s
     if not dt_s > 0.0:
         return None
     dyaw = wrap_angle_rad(older.alpha_rad - newer.alpha_rad)
     nx, ny = math.cos(older.alpha_rad), math.sin(older.alpha_rad)
     dx, dy = -ny, nx  # the direction along the board
-    direction = np.array([dx, dy])
     along_normal = older.r_m - newer.r_m
     var_normal = older.covariance.item(0, 0) + newer.covariance.item(0, 0)
     var_yaw = older.covariance.item(1, 1) + newer.covariance.item(1, 1)
-    estimates: list[float] = []
-    variances: list[float] = []
+    weight_sum, weighted = 0.0, 0.0
     for a, b in ((older.low_end, newer.low_end), (older.high_end, newer.high_end)):
         if a is not None and b is not None:
             lever_m = math.hypot(b.x_m, b.y_m)
-            variances.append(a.sigma_m**2 + b.sigma_m**2 + lever_m**2 * var_yaw)
-            estimates.append(_along(direction, a, b, dyaw))
-    if estimates:
-        weights = np.array([1.0 / v for v in variances])
-        total = float(np.add.reduce(weights))
-        along = float(np.dot(weights, estimates)) / total
-        var_along = 1.0 / total
+            weight = 1.0 / (a.sigma_m**2 + b.sigma_m**2 + lever_m**2 * var_yaw)
+            weight_sum += weight
+            weighted += weight * _along((dx, dy), a, b, dyaw)
+    if weight_sum > 0.0:
+        along = weighted / weight_sum
+        var_along = 1.0 / weight_sum
     else:
         along = 0.0
         var_along = (params.unknown_along_sigma_mps * dt_s) ** 2
-    translation = (nx * along_normal + dx * along, ny * along_normal + dy * along)
-    basis = np.array([[nx, dx], [ny, dy]])
-    (c00, c01), (c10, c11) = (
-        basis @ np.array([[var_normal, 0.0], [0.0, var_along]]) @ basis.T
-    ).tolist()
-    covariance = np.array([[c00, c01, 0.0], [c10, c11, 0.0], [0.0, 0.0, var_yaw]])
-    velocity = np.array([translation[0], translation[1], dyaw])
-    velocity /= dt_s
-    covariance /= dt_s * dt_s
+    rate = 1.0 / dt_s
+    rate_sq = rate * rate
+    c00 = (nx * nx * var_normal + dx * dx * var_along) * rate_sq
+    c01 = (nx * ny * var_normal + dx * dy * var_along) * rate_sq
+    c11 = (ny * ny * var_normal + dy * dy * var_along) * rate_sq
+    velocity = np.array(
+        [
+            (nx * along_normal + dx * along) * rate,
+            (ny * along_normal + dy * along) * rate,
+            dyaw * rate,
+        ]
+    )
+    covariance = np.array([[c00, c01, 0.0], [c01, c11, 0.0], [0.0, 0.0, var_yaw * rate_sq]])
     return BodyMotion(velocity, covariance, correlation_time_s=dt_s)
 
 
