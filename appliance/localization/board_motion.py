@@ -27,6 +27,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from appliance.localization.compound import wrap_angle_rad
+from appliance.localization.ekf_floats import Matrix, inverse_3x3
 from appliance.localization.launcher_ekf import BodyMotion
 
 FloatArray = NDArray[np.float64]
@@ -63,14 +64,13 @@ class BoardMotionParams:
     unknown_along_sigma_mps: float = 0.3
 
 
-def _along(direction: FloatArray, end_a: BoardEnd, end_b: BoardEnd, dyaw: float) -> float:
+def _along(direction: tuple[float, float], end_a: BoardEnd, end_b: BoardEnd, dyaw: float) -> float:
+    """How far ``end_a`` is from ``end_b`` (turned by ``dyaw`` into a's frame) along the
+    board's ``direction``."""
     c, s = math.cos(dyaw), math.sin(dyaw)
-    # end_a less end_b turned into a's frame, worked out in floats as numpy would.
-    apart = [
-        end_a.x_m - (c * end_b.x_m - s * end_b.y_m),
-        end_a.y_m - (s * end_b.x_m + c * end_b.y_m),
-    ]
-    return float(direction @ np.array(apart))
+    apart_x = end_a.x_m - (c * end_b.x_m - s * end_b.y_m)
+    apart_y = end_a.y_m - (s * end_b.x_m + c * end_b.y_m)
+    return direction[0] * apart_x + direction[1] * apart_y
 
 
 def motion_between(
@@ -78,43 +78,44 @@ def motion_between(
 ) -> BodyMotion | None:
     """O_f's velocity in its own frame from two sightings of the board, with covariance.
 
-    Element by element in floats (the same roundings as numpy's elementwise operations:
-    a few small arrays cost more than their arithmetic); products of vectors and
-    matrices stay numpy's, whose sums may round differently."""
+    In floats (asked at every scan; a few small arrays cost more than their arithmetic):
+    the covariance is ``B diag(var_normal, var_along) Bᵀ`` with ``B`` the board's normal
+    and direction as columns, written out."""
     dt_s = newer.t_s - older.t_s
     if not dt_s > 0.0:
         return None
     dyaw = wrap_angle_rad(older.alpha_rad - newer.alpha_rad)
     nx, ny = math.cos(older.alpha_rad), math.sin(older.alpha_rad)
     dx, dy = -ny, nx  # the direction along the board
-    direction = np.array([dx, dy])
     along_normal = older.r_m - newer.r_m
     var_normal = older.covariance.item(0, 0) + newer.covariance.item(0, 0)
     var_yaw = older.covariance.item(1, 1) + newer.covariance.item(1, 1)
-    estimates: list[float] = []
-    variances: list[float] = []
+    weight_sum, weighted = 0.0, 0.0
     for a, b in ((older.low_end, newer.low_end), (older.high_end, newer.high_end)):
         if a is not None and b is not None:
             lever_m = math.hypot(b.x_m, b.y_m)
-            variances.append(a.sigma_m**2 + b.sigma_m**2 + lever_m**2 * var_yaw)
-            estimates.append(_along(direction, a, b, dyaw))
-    if estimates:
-        weights = np.array([1.0 / v for v in variances])
-        total = float(np.add.reduce(weights))
-        along = float(np.dot(weights, estimates)) / total
-        var_along = 1.0 / total
+            weight = 1.0 / (a.sigma_m**2 + b.sigma_m**2 + lever_m**2 * var_yaw)
+            weight_sum += weight
+            weighted += weight * _along((dx, dy), a, b, dyaw)
+    if weight_sum > 0.0:
+        along = weighted / weight_sum
+        var_along = 1.0 / weight_sum
     else:
         along = 0.0
         var_along = (params.unknown_along_sigma_mps * dt_s) ** 2
-    translation = (nx * along_normal + dx * along, ny * along_normal + dy * along)
-    basis = np.array([[nx, dx], [ny, dy]])
-    (c00, c01), (c10, c11) = (
-        basis @ np.array([[var_normal, 0.0], [0.0, var_along]]) @ basis.T
-    ).tolist()
-    covariance = np.array([[c00, c01, 0.0], [c10, c11, 0.0], [0.0, 0.0, var_yaw]])
-    velocity = np.array([translation[0], translation[1], dyaw])
-    velocity /= dt_s
-    covariance /= dt_s * dt_s
+    rate = 1.0 / dt_s
+    rate_sq = rate * rate
+    c00 = (nx * nx * var_normal + dx * dx * var_along) * rate_sq
+    c01 = (nx * ny * var_normal + dx * dy * var_along) * rate_sq
+    c11 = (ny * ny * var_normal + dy * dy * var_along) * rate_sq
+    velocity = np.array(
+        [
+            (nx * along_normal + dx * along) * rate,
+            (ny * along_normal + dy * along) * rate,
+            dyaw * rate,
+        ]
+    )
+    covariance = np.array([[c00, c01, 0.0], [c01, c11, 0.0], [0.0, 0.0, var_yaw * rate_sq]])
     return BodyMotion(velocity, covariance, correlation_time_s=dt_s)
 
 
@@ -124,7 +125,8 @@ class _WindowMotion(NamedTuple):
     older: BoardSighting
     newer: BoardSighting
     motion: BodyMotion | None
-    information: FloatArray | None  # the inverse of the motion's covariance
+    information: Matrix | None  # the inverse of the motion's covariance, as floats
+    velocity: list[float]  # the motion's velocity, as floats
 
 
 class BoardMotion:
@@ -154,7 +156,7 @@ class BoardMotion:
     def motion(self, now_s: float) -> BodyMotion | None:
         """The inverse-covariance fusion of every scanner's window, or None when no
         scanner has two recent sightings."""
-        estimates: list[tuple[BodyMotion, FloatArray]] = []  # with their information
+        estimates: list[_WindowMotion] = []
         for sensor, history in self._history.items():
             if len(history) < 2 or now_s - history[-1].t_s > self.params.max_age_s:
                 continue
@@ -162,24 +164,42 @@ class BoardMotion:
                 continue
             found = self._window(sensor, history[0], history[-1])
             if found.motion is not None and found.information is not None:
-                estimates.append((found.motion, found.information))
+                estimates.append(found)
         if not estimates:
             return None
         if len(estimates) == 1:
-            return estimates[0][0]
-        information = sum(info for _, info in estimates)
-        covariance = np.asarray(np.linalg.inv(information), dtype=np.float64)
-        weighted = sum(info @ e.velocity for e, info in estimates)
-        correlation_s = max(e.correlation_time_s for e, _ in estimates)
-        return BodyMotion(covariance @ weighted, covariance, correlation_s)
+            return estimates[0].motion
+        return _fuse(estimates)
 
     def _window(self, sensor: str, older: BoardSighting, newer: BoardSighting) -> _WindowMotion:
         kept = self._window_motion.get(sensor)
         if kept is not None and kept.older is older and kept.newer is newer:
             return kept
         found = motion_between(older, newer, self.params)
-        information = (
-            None if found is None else np.asarray(np.linalg.inv(found.covariance), dtype=np.float64)
-        )
-        kept = self._window_motion[sensor] = _WindowMotion(older, newer, found, information)
+        information = None if found is None else inverse_3x3(found.covariance.tolist())
+        velocity = [] if found is None else found.velocity.tolist()
+        kept = _WindowMotion(older, newer, found, information, velocity)
+        self._window_motion[sensor] = kept
         return kept
+
+
+def _fuse(estimates: list[_WindowMotion]) -> BodyMotion | None:
+    """The inverse-covariance fusion of windows' motions, ``(Σ Iᵢ)⁻¹ Σ Iᵢ vᵢ``, in floats
+    (3x3: numpy's inverses and products cost more than their arithmetic)."""
+    total = [[0.0, 0.0, 0.0], [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]]
+    weighted = [0.0, 0.0, 0.0]
+    for window in estimates:
+        information, velocity = window.information, window.velocity
+        assert information is not None
+        for i in range(3):
+            row = information[i]
+            total_row = total[i]
+            for j in range(3):
+                total_row[j] += row[j]
+            weighted[i] += row[0] * velocity[0] + row[1] * velocity[1] + row[2] * velocity[2]
+    covariance = inverse_3x3(total)
+    if covariance is None:
+        return None
+    fused = [sum(covariance[i][j] * weighted[j] for j in range(3)) for i in range(3)]
+    correlation_s = max(w.motion.correlation_time_s for w in estimates if w.motion is not None)
+    return BodyMotion(np.array(fused), np.array(covariance), correlation_s)

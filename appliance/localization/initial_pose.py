@@ -97,7 +97,10 @@ def _candidates(
 
 
 def board_end_sigma_m(
-    end_xy_m: tuple[float, float], sensor: Pose2D, normal: FloatArray, params: InitialPoseParams
+    end_xy_m: tuple[float, float],
+    sensor: Pose2D,
+    normal: FloatArray | tuple[float, float],
+    params: InitialPoseParams,
 ) -> float:
     """How well a board's true end is known along the board.
 
@@ -106,9 +109,10 @@ def board_end_sigma_m(
     grazes it (divided by the cosine of the incidence). So an end seen head-on and near
     is worth far more than one seen at a slant and far.
     """
-    ray = np.array(end_xy_m) - np.array([sensor.x_m, sensor.y_m])
-    range_m = float(np.hypot(ray[0], ray[1]))
-    cos_incidence = max(abs(float(ray @ normal)) / max(range_m, 1e-9), params.min_cos_incidence)
+    ray_x, ray_y = end_xy_m[0] - sensor.x_m, end_xy_m[1] - sensor.y_m
+    range_m = math.hypot(ray_x, ray_y)
+    facing = ray_x * float(normal[0]) + ray_y * float(normal[1])
+    cos_incidence = max(abs(facing) / max(range_m, 1e-9), params.min_cos_incidence)
     spread_m = range_m * params.beam_step_rad + 0.5 * (
         params.footprint_exit_m + params.footprint_divergence_rad * range_m
     )

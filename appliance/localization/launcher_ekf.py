@@ -2,10 +2,11 @@
 
 State ``(x_m, y_m, yaw_rad)`` of O_f, the point midway between the two scanners (Fig. 7):
 chosen there, as the paper says, so that the estimate's uncertainty propagates least to
-where it is measured. Built on filterpy's ``ExtendedKalmanFilter`` for the update (its
-update is the Joseph form, which stays symmetric and positive where ``(I - KH)P`` of
-eq. 10 does not); the prediction is our own, because filterpy's ``predict()`` is linear
-and the motion here is the compounding ``x ⊕ u`` of eq. 2.
+where it is measured. The update's covariance is the Joseph form (it stays symmetric and
+positive where ``(I - KH)P`` of eq. 10 does not), as filterpy's ``ExtendedKalmanFilter``
+has it; the prediction is the compounding ``x ⊕ u`` of eq. 2. The algebra is done in
+floats (``ekf_floats``): at 3x3 numpy's calls cost several times their arithmetic, and
+the tests hold it to filterpy's and numpy's to rounding.
 
 What this adds to the paper, and why:
 - the covariance is propagated with the compounding's Jacobians, not by ``P + Q`` (eq. 3
@@ -32,11 +33,10 @@ from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
-from filterpy.kalman import ExtendedKalmanFilter
 from numpy.typing import NDArray
-from scipy.stats import chi2
 
-from appliance.localization.compound import compound, compound_jacobians, wrap_angle_rad
+from appliance.localization.compound import wrap_angle_rad
+from appliance.localization.ekf_floats import joseph_update, nis_2d, propagate
 from drivers.geometry import Pose2D
 
 FloatArray = NDArray[np.float64]
@@ -111,11 +111,11 @@ def cylinder_measurement(
     ``(x_L, y_L)``); the bearing is in the scanner's frame (x out of its window), so the
     paper's ``+ π/2`` (the device's angle convention) is already taken out upstream.
     """
-    z, jac = _cylinder_terms(state, landmark_xy, sensor)
+    z, jac = cylinder_terms(state, landmark_xy, sensor)
     return np.array(z), np.array(jac)
 
 
-def _cylinder_terms(
+def cylinder_terms(
     state: Sequence[float] | FloatArray, landmark_xy: tuple[float, float], sensor: Pose2D
 ) -> Terms:
     """`cylinder_measurement` as floats: the association works out the NIS of every
@@ -152,33 +152,8 @@ def _board_terms(state: Sequence[float] | FloatArray) -> Terms:
     )
 
 
-def _residual(z: FloatArray, z_hat: FloatArray) -> FloatArray:
-    return np.array([z[0] - z_hat[0], wrap_angle_rad(float(z[1] - z_hat[1]))])
-
-
-def _nis(
-    h: list[list[float]], p: list[list[float]], r: list[list[float]], y0: float, y1: float
-) -> float:
-    """``yᵀ S⁻¹ y`` with ``S = H P Hᵀ + R`` (2x3, 3x3, 2x2) in floats, Cramer's rule for
-    the solve: a sixth of the cost of numpy's products and ``linalg.solve`` at this size,
-    and the same to rounding. Only the NIS is worked out so (the update is filterpy's
-    own): it gates and associates. ``LinAlgError`` for a singular ``S``, as the solve."""
-    (a0, a1, a2), (b0, b1, b2) = h
-    (p00, p01, p02), (p10, p11, p12), (p20, p21, p22) = p
-    u0, u1, u2 = (a0 * p00 + a1 * p10 + a2 * p20, a0 * p01 + a1 * p11 + a2 * p21,
-                  a0 * p02 + a1 * p12 + a2 * p22)  # fmt: skip
-    v0, v1, v2 = (b0 * p00 + b1 * p10 + b2 * p20, b0 * p01 + b1 * p11 + b2 * p21,
-                  b0 * p02 + b1 * p12 + b2 * p22)  # fmt: skip
-    s00, s01 = u0 * a0 + u1 * a1 + u2 * a2 + r[0][0], u0 * b0 + u1 * b1 + u2 * b2 + r[0][1]
-    s10, s11 = v0 * a0 + v1 * a1 + v2 * a2 + r[1][0], v0 * b0 + v1 * b1 + v2 * b2 + r[1][1]
-    det = s00 * s11 - s01 * s10
-    if det == 0.0:
-        raise np.linalg.LinAlgError("singular innovation covariance")
-    return (y0 * (s11 * y0 - s01 * y1) + y1 * (s00 * y1 - s10 * y0)) / det
-
-
 def _cylinder_model(landmark_xy: tuple[float, float], sensor: Pose2D) -> Model:
-    return lambda state: _cylinder_terms(state, landmark_xy, sensor)
+    return lambda state: cylinder_terms(state, landmark_xy, sensor)
 
 
 def _well_formed(z: FloatArray, r_cov: FloatArray) -> bool:
@@ -198,6 +173,8 @@ class _Innovation(NamedTuple):
     nis: float
     z_hat: list[float]
     h: list[list[float]]
+    residual: tuple[float, float]  # z − z_hat, the bearing's wrapped
+    r: list[list[float]]  # the measurement's covariance, as floats
 
 
 class LauncherEkf:
@@ -205,8 +182,10 @@ class LauncherEkf:
 
     def __init__(self, params: EkfParams | None = None) -> None:
         self.params = params or EkfParams()
-        self._gate_2d = float(chi2.ppf(self.params.gate_probability, 2))
-        self._kf = ExtendedKalmanFilter(dim_x=3, dim_z=2)
+        # χ²(2)'s quantile in closed form: its distribution function is 1 − e^(−x/2).
+        self._gate_2d = -2.0 * math.log1p(-self.params.gate_probability)
+        self._x: list[float] = [0.0, 0.0, 0.0]
+        self._p: list[list[float]] = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]
         self.t_s: float | None = None
         self.accepted: Counter[str] = Counter()
         self.rejected: Counter[str] = Counter()
@@ -225,11 +204,17 @@ class LauncherEkf:
 
     @property
     def state(self) -> FloatArray:
-        return np.asarray(self._kf.x, dtype=float).reshape(3).copy()
+        return np.array(self._x)
 
     @property
     def covariance(self) -> FloatArray:
-        return np.asarray(self._kf.P, dtype=float).copy()
+        return np.array(self._p)
+
+    @property
+    def state_floats(self) -> tuple[float, float, float]:
+        """`state` as floats, for the callers that do scalar arithmetic with it."""
+        x, y, yaw = self._x
+        return x, y, yaw
 
     @property
     def pose(self) -> Pose2D:
@@ -240,7 +225,8 @@ class LauncherEkf:
         self, pose: Pose2D | None = None, covariance: FloatArray | None = None, t_s: float = 0.0
     ) -> None:
         """Forget everything; with a pose, start from it (the initial pose, 3.2.3 a)."""
-        self._kf = ExtendedKalmanFilter(dim_x=3, dim_z=2)
+        self._x = [0.0, 0.0, 0.0]
+        self._p = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]
         self.accepted.clear()
         self.rejected.clear()
         self._rejection_run.clear()
@@ -251,27 +237,37 @@ class LauncherEkf:
             return
         if covariance is None or np.shape(covariance) != (3, 3):
             raise ValueError("an initial pose needs its 3x3 covariance")
-        self._kf.x = np.array([pose.x_m, pose.y_m, wrap_angle_rad(pose.yaw_rad)])
-        self._kf.P = np.array(covariance, dtype=float)
+        self._x = [float(pose.x_m), float(pose.y_m), wrap_angle_rad(float(pose.yaw_rad))]
+        self._p = np.asarray(covariance, dtype=float).tolist()
         self.t_s = t_s
 
     def process_noise(self, delta: FloatArray, dt_s: float) -> FloatArray:
         """Q for a motion ``delta`` over ``dt_s``: grows with the distance and the turn."""
+        dx_m, dy_m, dyaw_rad = (float(v) for v in delta[:3])
+        noise: FloatArray = np.array(self._process_noise(dx_m, dy_m, dyaw_rad, dt_s))
+        return noise
+
+    def _process_noise(
+        self, dx_m: float, dy_m: float, dyaw_rad: float, dt_s: float
+    ) -> list[list[float]]:
         p = self.params
-        moved_m = math.hypot(float(delta[0]), float(delta[1]))
+        moved_m = math.hypot(dx_m, dy_m)
         root_dt = math.sqrt(max(dt_s, 0.0))
         sigma_t = p.translation_noise_per_m * moved_m + p.translation_noise_per_sqrt_s_m * root_dt
         sigma_r = (
-            p.heading_noise_per_rad * abs(float(delta[2]))
+            p.heading_noise_per_rad * abs(dyaw_rad)
             + p.heading_noise_per_m_rad * moved_m
             + p.heading_noise_per_sqrt_s_rad * root_dt
         )
         t2, r2 = sigma_t**2, sigma_r**2
-        return np.array([[t2, 0.0, 0.0], [0.0, t2, 0.0], [0.0, 0.0, r2]])
+        return [[t2, 0.0, 0.0], [0.0, t2, 0.0], [0.0, 0.0, r2]]
 
     def predict(self, t_s: float, motion: BodyMotion) -> bool:
         """Eqs. 2-3: move the estimate to ``t_s`` with the board's motion. False (and
-        nothing changes) when ``t_s`` is before the filter's time: out of order."""
+        nothing changes) when ``t_s`` is before the filter's time: out of order.
+
+        The covariance goes through the compounding's Jacobians (``compound``), written
+        out here in floats."""
         if self.t_s is None:
             raise RuntimeError("predict before reset: the filter has no initial pose")
         dt_s = t_s - self.t_s
@@ -280,15 +276,20 @@ class LauncherEkf:
             return False
         if dt_s <= 0.0:
             return True
-        delta = np.asarray(motion.velocity, dtype=float) * dt_s
-        q_delta = (
-            np.asarray(motion.covariance, dtype=float) * dt_s * max(dt_s, motion.correlation_time_s)
-        )
-        q_delta = q_delta + self.process_noise(delta, dt_s)
-        x = self.state
-        j_pose, j_delta = compound_jacobians(x, delta)
-        self._kf.x = compound(x, delta)
-        self._kf.P = j_pose @ self._kf.P @ j_pose.T + j_delta @ q_delta @ j_delta.T
+        vx, vy, vyaw = motion.velocity.tolist()
+        dx, dy, dyaw = vx * dt_s, vy * dt_s, vyaw * dt_s
+        longest = max(dt_s, motion.correlation_time_s)
+        noise = self._process_noise(dx, dy, dyaw, dt_s)
+        q_delta = [
+            [v * dt_s * longest + n for v, n in zip(row, noise_row, strict=True)]
+            for row, noise_row in zip(motion.covariance.tolist(), noise, strict=True)
+        ]
+        x, y, yaw = self._x
+        c, s = math.cos(yaw), math.sin(yaw)
+        j_pose = [[1.0, 0.0, -s * dx - c * dy], [0.0, 1.0, c * dx - s * dy], [0.0, 0.0, 1.0]]
+        j_delta = [[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]
+        self._x = [x + c * dx - s * dy, y + s * dx + c * dy, wrap_angle_rad(yaw + dyaw)]
+        self._p = propagate(self._p, j_pose, j_delta, q_delta)
         self.t_s = t_s
         return True
 
@@ -340,7 +341,11 @@ class LauncherEkf:
         models = [_cylinder_model(xy, sensor) for xy in landmarks_xy]
         if not _well_formed(z, r_cov):
             return 0, self._update("cylinder", z, r_cov, models[0])
-        found = self._innovations(z, r_cov, models)
+        try:
+            found = self._innovations(z, r_cov, models)
+        except ZeroDivisionError:
+            self.rejected["cylinder:singular"] += 1
+            return 0, UpdateOutcome(False, "cylinder", math.nan, "singular innovation covariance")
         best = min(range(len(found)), key=lambda k: found[k].nis)
         return best, self._update("cylinder", z, r_cov, models[best], known=found[best])
 
@@ -350,13 +355,13 @@ class LauncherEkf:
         """The NIS of a measurement under each model at the present state, with the
         model's prediction and Jacobian there (which the update then reuses: the state
         has not moved). In floats: these are 2x2 and 2x3."""
-        state, p, r = self.state.tolist(), self._kf.P.tolist(), r_cov.tolist()
+        state, p, r = self._x, self._p, r_cov.tolist()
         z0, z1 = float(z[0]), float(z[1])
         found = []
         for model in models:
             z_hat, h = model(state)
             y0, y1 = z0 - z_hat[0], wrap_angle_rad(z1 - z_hat[1])
-            found.append(_Innovation(_nis(h, p, r, y0, y1), z_hat, h))
+            found.append(_Innovation(nis_2d(h, p, r, y0, y1), z_hat, h, (y0, y1), r))
         return found
 
     def _update(
@@ -376,7 +381,7 @@ class LauncherEkf:
         if known is None:
             try:
                 known = self._innovations(z, r_cov, [model])[0]
-            except np.linalg.LinAlgError:
+            except ZeroDivisionError:
                 self.rejected[f"{kind}:singular"] += 1
                 return UpdateOutcome(False, kind, math.nan, "singular innovation covariance")
         nis = known.nis
@@ -385,20 +390,19 @@ class LauncherEkf:
             self.rejected[kind] += 1
             self._rejection_run[kind] += 1
             if self._rejection_run[kind] >= self.params.inflate_after_rejections:
-                self._kf.P = self._kf.P * self.params.inflation_factor
+                factor = self.params.inflation_factor
+                self._p = [[v * factor for v in row] for row in self._p]
                 self._rejection_run[kind] = 0
                 self.inflations += 1
             return UpdateOutcome(False, kind, nis, f"gated: NIS {nis:.1f} > {self._gate_2d:.1f}")
+        # The model's prediction and Jacobian at the present state: `known`'s.
+        updated = joseph_update(self._x, self._p, known.h, known.r, known.residual)
+        if updated is None:
+            self.rejected[f"{kind}:singular"] += 1
+            return UpdateOutcome(False, kind, nis, "singular innovation covariance")
         self._rejection_run[kind] = 0
-        self._kf.x = self.state
-        # filterpy asks for H(x) and h(x) at its x, which is the state `known` was worked
-        # out at: its figures, as arrays, are what the model gives there.
-        h, z_hat = np.array(known.h), np.array(known.z_hat)
-        self._kf.update(z, lambda _: h, lambda _: z_hat, R=r_cov, residual=_residual)
-        x = self.state
-        x[2] = wrap_angle_rad(float(x[2]))
-        self._kf.x = x
-        p = self._kf.P
-        self._kf.P = 0.5 * (p + p.T)
+        x, self._p = updated
+        x[2] = wrap_angle_rad(x[2])
+        self._x = x
         self.accepted[kind] += 1
         return UpdateOutcome(True, kind, nis)

@@ -27,7 +27,8 @@ from appliance.localization.board_motion import (
     BoardMotion,
     BoardSighting,
 )
-from appliance.localization.compound import compound, compound_jacobians, wrap_angle_rad
+from appliance.localization.compound import wrap_angle_rad
+from appliance.localization.ekf_floats import sandwich
 from appliance.localization.initial_pose import (
     InitialPose,
     InitialPoseParams,
@@ -37,7 +38,7 @@ from appliance.localization.initial_pose import (
 from appliance.localization.launcher_ekf import (
     BodyMotion,
     LauncherEkf,
-    cylinder_measurement,
+    cylinder_terms,
 )
 from appliance.localization.launcher_map import CylinderLandmark
 from appliance.localization.localizer_params import (
@@ -62,14 +63,28 @@ __all__ = [
 FloatArray = NDArray[np.float64]
 
 
-def _polar(circle: CircleFeature, sensor: Pose2D) -> tuple[FloatArray, FloatArray]:
-    """A circle's centre as range and bearing from the scanner, with covariance."""
+def _polar(
+    circle: CircleFeature, sensor: Pose2D, extra: tuple[float, float] = (0.0, 0.0)
+) -> tuple[FloatArray, FloatArray]:
+    """A circle's centre as range and bearing from the scanner, with covariance (``J C
+    Jᵀ`` written out in floats: numpy's 2x2 products cost more than their arithmetic),
+    plus ``extra`` on its diagonal (a scanner's systematic variances)."""
     dx, dy = circle.cx_m - sensor.x_m, circle.cy_m - sensor.y_m
     q = dx * dx + dy * dy
     r = math.sqrt(q)
     z = np.array([r, wrap_angle_rad(math.atan2(dy, dx) - sensor.yaw_rad)])
-    jac = np.array([[dx / r, dy / r], [-dy / q, dx / q]])
-    return z, jac @ circle.covariance @ jac.T
+    (j00, j01), (j10, j11) = (dx / r, dy / r), (-dy / q, dx / q)
+    (c00, c01), (c10, c11) = circle.covariance.tolist()
+    t00, t01 = j00 * c00 + j01 * c10, j00 * c01 + j01 * c11
+    t10, t11 = j10 * c00 + j11 * c10, j10 * c01 + j11 * c11
+    cross = t00 * j10 + t01 * j11
+    covariance = np.array(
+        [
+            [t00 * j00 + t01 * j01 + extra[0], cross],
+            [t10 * j00 + t11 * j01, t10 * j10 + t11 * j11 + extra[1]],
+        ]
+    )
+    return z, covariance
 
 
 class _Verdicts:
@@ -128,6 +143,9 @@ class LauncherLocalizer:
             for name, s in scanners.items()
         }
         self._initial = self._initial_params()
+        # The map's cylinders (a property that builds them anew at every read), once.
+        self._cylinders = self.params.launcher.cylinders
+        self._landmarks_xy = [(lm.x_m, lm.y_m) for lm in self._cylinders]
         self.ekf = LauncherEkf(self.params.ekf)
         self.motion = BoardMotion(self.params.board_motion)
         self.reset()
@@ -204,10 +222,10 @@ class LauncherLocalizer:
 
     # ---- with a pose -----------------------------------------------------------------
     def _rois(
-        self, state: FloatArray, cylinders: tuple[CylinderLandmark, ...]
+        self, state: tuple[float, float, float], cylinders: tuple[CylinderLandmark, ...]
     ) -> list[DiscRoi | LineRoi]:
         p = self.params
-        x, y, yaw = state.tolist()
+        x, y, yaw = state
         c, s = math.cos(yaw), math.sin(yaw)
 
         def to_of(x_m: float, y_m: float) -> tuple[float, float]:
@@ -235,23 +253,20 @@ class LauncherLocalizer:
         if not self.ekf.predict(t_s, motion):
             return
         pose_in_of = self.sensors[sensor]
-        cylinders = p.launcher.cylinders  # a property: built anew at every read
+        cylinders = self._cylinders
         features = extract_features(
-            ranges_m, angles_rad, pose_in_of, p.features, self._rois(self.ekf.state, cylinders),
-            range_offset_m=setup.range_offset_m,
+            ranges_m, angles_rad, pose_in_of, p.features,
+            self._rois(self.ekf.state_floats, cylinders), range_offset_m=setup.range_offset_m,
         )  # fmt: skip
         self.last_features[sensor] = features
         self.feature_rejections.update(features.rejections)
-        systematic = np.array(
-            [[setup.systematic_range_sigma_m**2, 0.0], [0.0, setup.systematic_yaw_sigma_rad**2]]
-        )
+        systematic = (setup.systematic_range_sigma_m**2, setup.systematic_yaw_sigma_rad**2)
         # Per landmark, this scan's best: one detection accepted is the landmark seen,
         # whatever else near it (a post, a person) was kept out.
         seen: dict[str, tuple[bool, float]] = {}
-        landmarks_xy = [(lm.x_m, lm.y_m) for lm in cylinders]
+        landmarks_xy = self._landmarks_xy
         for circle in features.circles:
-            z, cov = _polar(circle, pose_in_of)
-            r_cov = cov + systematic
+            z, r_cov = _polar(circle, pose_in_of, systematic)
             index, outcome = self.ekf.update_nearest_cylinder(z, r_cov, landmarks_xy, pose_in_of)
             best = cylinders[index]
             accepted, nis = seen.get(best.name, (False, math.inf))
@@ -267,7 +282,7 @@ class LauncherLocalizer:
         board = self._board_line(features.lines)
         if board is not None:
             z = np.array([board.r_m, board.alpha_rad])
-            r_cov = np.asarray(board.covariance) + systematic
+            r_cov = board.covariance + np.diag(systematic)
             if self.ekf.update_board(z, r_cov).accepted:
                 self._last_accept_s = t_s
             self.motion.update(sensor, self._sighting(board, pose_in_of, t_s))
@@ -275,8 +290,8 @@ class LauncherLocalizer:
     def _board_line(self, lines: tuple[LineFeature, ...]) -> LineFeature | None:
         """The line that is the front board, as predicted; the longest if it is split."""
         p = self.params
-        state = self.ekf.state
-        expected_r, expected_alpha = -float(state[0]), wrap_angle_rad(-float(state[2]))
+        x, _, yaw = self.ekf.state_floats
+        expected_r, expected_alpha = -x, wrap_angle_rad(-yaw)
         matches = [
             line
             for line in lines
@@ -287,13 +302,13 @@ class LauncherLocalizer:
 
     def _sighting(self, line: LineFeature, sensor: Pose2D, t_s: float) -> BoardSighting:
         initial = self.params.initial
-        normal = np.array([math.cos(line.alpha_rad), math.sin(line.alpha_rad)])
-        tangent = np.array([-normal[1], normal[0]])
-        ends = []
+        normal = (math.cos(line.alpha_rad), math.sin(line.alpha_rad))
+        ends: list[tuple[float, BoardEnd | None]] = []
         sides = ((line.start_xy_m, line.start_occluded), (line.end_xy_m, line.end_occluded))
         for xy, occluded in sides:
             sigma = board_end_sigma_m(xy, sensor, normal, initial)
-            ends.append((float(tangent @ np.array(xy)), None if occluded else BoardEnd(*xy, sigma)))
+            along = -normal[1] * xy[0] + normal[0] * xy[1]  # along the tangent (−n_y, n_x)
+            ends.append((along, None if occluded else BoardEnd(*xy, sigma)))
         ends.sort(key=lambda pair: pair[0])
         return BoardSighting(
             t_s, line.r_m, line.alpha_rad, np.asarray(line.covariance), ends[0][1], ends[1][1]
@@ -302,11 +317,13 @@ class LauncherLocalizer:
     # ---- what the rest of the vehicle reads ------------------------------------------
     def _in_view(self, landmark: CylinderLandmark, sensor: Pose2D) -> bool:
         """Whether the predicted landmark is well inside this scanner's field and range."""
-        z, _ = cylinder_measurement(self.ekf.state, (landmark.x_m, landmark.y_m), sensor)
+        (range_m, bearing_rad), _ = cylinder_terms(
+            self.ekf.state_floats, (landmark.x_m, landmark.y_m), sensor
+        )
         p = self.params
         return (
-            p.in_view_min_range_m <= float(z[0]) <= p.in_view_max_range_m
-            and abs(float(z[1])) <= p.in_view_half_angle_rad
+            p.in_view_min_range_m <= range_m <= p.in_view_max_range_m
+            and abs(bearing_rad) <= p.in_view_half_angle_rad
         )
 
     def _disagreeing_landmarks(self) -> list[str]:
@@ -349,8 +366,11 @@ class LauncherLocalizer:
                 None, None, {}, *counts,
             )  # fmt: skip
         state, cov = self.ekf.state, self.ekf.covariance
-        sigma_m = math.sqrt(max(float(np.max(np.linalg.eigvalsh(cov[:2, :2]))), 0.0))
-        sigma_yaw = math.sqrt(max(float(cov[2, 2]), 0.0))
+        (pxx, pxy, _), (_, pyy, _), (_, _, pyaw) = cov.tolist()
+        # The larger eigenvalue of the position's 2x2 covariance, in closed form.
+        largest = 0.5 * (pxx + pyy) + math.hypot(0.5 * (pxx - pyy), pxy)
+        sigma_m = math.sqrt(max(largest, 0.0))
+        sigma_yaw = math.sqrt(max(pyaw, 0.0))
         silent_s = now_s - self._last_accept_s
         if silent_s > p.lost_after_s:
             status, reason = LocalizationStatus.LOST, f"no landmark accepted for {silent_s:.2f} s"
@@ -373,10 +393,14 @@ class LauncherLocalizer:
         quality = 0
         if status is not LocalizationStatus.LOST:
             quality = round(100.0 * max(0.0, min(1.0, 1.0 - sigma_m / p.lost_sigma_m)))
-        back = np.array([-self.origin_in_vehicle.x_m, -self.origin_in_vehicle.y_m, 0.0])
-        centre = compound(state, back)
-        j_pose, _ = compound_jacobians(state, back)
-        centre_cov = j_pose @ cov @ j_pose.T
+        # The vehicle's centre: O_f ⊕ (−origin), its covariance through the compounding's
+        # Jacobian (``compound``, ``compound_jacobians``), written out in floats.
+        x, y, yaw = self.ekf.state_floats
+        bx, by = -self.origin_in_vehicle.x_m, -self.origin_in_vehicle.y_m
+        c, s = math.cos(yaw), math.sin(yaw)
+        centre = (x + c * bx - s * by, y + s * bx + c * by, wrap_angle_rad(yaw + 0.0))
+        lever = ((1.0, 0.0, -s * bx - c * by), (0.0, 1.0, c * bx - s * by), (0.0, 0.0, 1.0))
+        centre_cov = np.array(sandwich(lever, cov.tolist()))
         return LocalizationEstimate(
             status,
             reason,
@@ -384,7 +408,7 @@ class LauncherLocalizer:
             self.ekf.t_s,
             Pose2D(*map(float, state)),
             cov,
-            Pose2D(*map(float, centre)),
+            Pose2D(*centre),
             centre_cov,
             dict(self.ekf.last_nis),
             *counts,

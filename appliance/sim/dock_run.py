@@ -27,6 +27,7 @@ from appliance.guidance.docking import (
     docking_errors,
     teeth_inside,
 )
+from appliance.localization.ekf_floats import inverse_3x3
 from appliance.localization.launcher_localizer import (
     LauncherLocalizer,
     LocalizationStatus,
@@ -104,15 +105,18 @@ NEAR_GAP_M = 2.0
 
 
 def _nees(estimate: Pose2D, covariance: np.ndarray, truth: Pose2D) -> float:
-    """``eᵀ P⁻¹ e`` for the error of (x, y, ψ), the heading's wrapped."""
-    error = np.array(
-        [
-            estimate.x_m - truth.x_m,
-            estimate.y_m - truth.y_m,
-            math.remainder(estimate.yaw_rad - truth.yaw_rad, math.tau),
-        ]
+    """``eᵀ P⁻¹ e`` for the error of (x, y, ψ), the heading's wrapped; by the cofactor
+    inverse in floats (``np.linalg.solve``'s to rounding: it is asked every control
+    cycle), NaN for a singular covariance (left out of the means)."""
+    error = (
+        estimate.x_m - truth.x_m,
+        estimate.y_m - truth.y_m,
+        math.remainder(estimate.yaw_rad - truth.yaw_rad, math.tau),
     )
-    return float(error @ np.linalg.solve(covariance, error))
+    inverse = inverse_3x3(covariance.tolist())
+    if inverse is None:
+        return math.nan
+    return sum(error[i] * inverse[i][j] * error[j] for i in range(3) for j in range(3))
 
 
 def run_dock(config: VehicleConfig, params: DockRunParams) -> DockResult:
@@ -199,8 +203,9 @@ def run_dock(config: VehicleConfig, params: DockRunParams) -> DockResult:
                     break
             else:
                 lost_since_s = None
-                if estimate.centre_covariance is not None:
-                    nees = _nees(estimate.centre_pose, estimate.centre_covariance, truth)
+                if estimate.centre_covariance is not None and math.isfinite(
+                    nees := _nees(estimate.centre_pose, estimate.centre_covariance, truth)
+                ):
                     near = gap <= NEAR_GAP_M
                     nees_sums[near] += nees
                     nees_counts[near] += 1

@@ -207,3 +207,24 @@ def test_a_map_that_does_not_match_the_launcher_degrades_the_estimate() -> None:
     last = statuses[-1]
     assert last.status is not LocalizationStatus.OK, last
     assert "cylinder_left not seen where the map puts it" in last.reason
+
+
+def test_the_estimate_in_floats_is_the_plain_compounding() -> None:
+    """`estimate` works its figures out in floats: the position σ is the largest
+    eigenvalue's root (numpy's ``eigvalsh``), the centre is O_f ⊕ (−origin) with its
+    covariance through the compounding's Jacobian (``compound``), to rounding."""
+    from appliance.localization.compound import compound, compound_jacobians
+
+    localizer, _, _ = _approach(SITE, ideal=False, seconds=2.0)
+    estimate = localizer.estimate(2.0)
+    assert estimate.pose is not None and estimate.covariance is not None
+    assert estimate.centre_pose is not None and estimate.centre_covariance is not None
+    state, cov = np.array(estimate.pose), estimate.covariance
+    back = np.array([-localizer.origin_in_vehicle.x_m, -localizer.origin_in_vehicle.y_m, 0.0])
+    j_pose, _ = compound_jacobians(state, back)
+    assert np.array(estimate.centre_pose) == pytest.approx(compound(state, back), abs=1e-12)
+    expected = j_pose @ cov @ j_pose.T
+    assert np.abs(estimate.centre_covariance - expected).max() <= 1e-12 * np.abs(expected).max()
+    sigma_m = math.sqrt(float(np.max(np.linalg.eigvalsh(cov[:2, :2]))))
+    quality = round(100.0 * max(0.0, min(1.0, 1.0 - sigma_m / localizer.params.lost_sigma_m)))
+    assert estimate.quality == quality
