@@ -13,7 +13,6 @@ from __future__ import annotations
 import asyncio
 import math
 import os
-import time
 from collections.abc import Awaitable, Callable
 from dataclasses import dataclass, field
 
@@ -176,11 +175,7 @@ def build_simulator(
     simulator.board_twins = boards
 
     async def run_boards(beat: Callable[[], None]) -> None:
-        period_s = boards.steering.telemetry_period_s
-        while True:
-            boards.step(time.monotonic())
-            beat()
-            await asyncio.sleep(period_s)
+        await boards.run(on_step=beat)
 
     simulator.services.append(twin_service("sim.boards", run_boards, policy))
     gnss = config.devices.gnss

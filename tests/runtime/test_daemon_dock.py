@@ -22,6 +22,7 @@ from appliance.daemon import Daemon, RunResult
 from appliance.guidance.docking import DockingParams, teeth_inside
 from appliance.modes import Mode
 from drivers.geometry import Pose2D
+from tests.runtime.shared_machine import for_shared_machine
 from tests.runtime.test_daemon_control import free_port
 from tests.runtime.twin_view import TwinView
 
@@ -51,8 +52,8 @@ def dock_config(start_gap_m: float = 3.0, pose_loop: str = "hl") -> VehicleConfi
         }
     )
     docking = config.docking.model_copy(update={"pose_loop": pose_loop})
-    return config.model_copy(
-        update={"devices": devices, "simulation": simulation, "docking": docking}
+    return for_shared_machine(
+        config.model_copy(update={"devices": devices, "simulation": simulation, "docking": docking})
     )
 
 

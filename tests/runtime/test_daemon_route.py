@@ -22,6 +22,7 @@ from appliance.localization.local_frame import LocalFrame
 from appliance.modes import AUTOMATIC_MODES, Mode
 from appliance.routes import RouteStore
 from appliance.routes.store import builtin_routes_dir
+from tests.runtime.shared_machine import for_shared_machine
 from tests.runtime.test_daemon_control import free_port
 from tests.runtime.test_daemon_dock import running, until
 
@@ -39,7 +40,7 @@ def route_config() -> VehicleConfig:
             "lms111_right": config.devices.lms111_right.model_copy(update={"port": free_port()}),
         }
     )
-    return config.model_copy(update={"devices": devices})
+    return for_shared_machine(config.model_copy(update={"devices": devices}))
 
 
 def distance_to_polyline_m(points: np.ndarray, x_m: float, y_m: float) -> float:
