@@ -7,9 +7,10 @@ scanner twins, pytest and whatever else the CI host runs. Measured on this proje
 with four busy processes beside a route test, the pot's longest gap between two frames
 at the daemon was 39-41 ms when the twin slept a period after each step, 24.5 ms on its
 absolute schedule (11.8 ms on an idle machine); a CI run saw 51 ms, and the daemon,
-rightly, went to ERROR mid-route. A test of docking or route following is not a test of the host's scheduler,
-so these runs get limits a few times wider. Detection of stale inputs is tested with the
-shipped limits elsewhere (tests/runtime/test_daemon_control.py, test_actuator_boards.py).
+rightly, went to ERROR mid-route. A test of docking or route following is not a test of
+the host's scheduler, so these runs get limits a few times wider. Detection of stale
+inputs is tested with the shipped limits elsewhere (tests/runtime/test_daemon_control.py,
+test_actuator_boards.py).
 """
 
 from __future__ import annotations
