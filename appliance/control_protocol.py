@@ -23,7 +23,11 @@ COMMAND_NAMES: Final[tuple[str, ...]] = (
     "hold",
     "release",
 )
-OPS: Final[tuple[str, ...]] = ("status", "command", "route")
+OPS: Final[tuple[str, ...]] = ("status", "command", "route", "maneuver", "samples")
+MANEUVER_ACTIONS: Final[tuple[str, ...]] = ("start", "stop")
+MAX_MANEUVER_NAME: Final = 32
+# A reply is encoded in the event loop: 200 samples take about a millisecond.
+MAX_SAMPLES_LIMIT: Final = 200
 MAX_ROUTE_NAME: Final = 64
 MAX_LINE_BYTES: Final = 8 * 1024
 
@@ -56,12 +60,30 @@ class RouteRequest:
     select: str
 
 
-Request = StatusRequest | CommandRequest | RouteRequest
+@dataclass(frozen=True)
+class ManeuverRequest:
+    """Start or stop the tap of a calibration maneuver (`dbw calibrate STEP`)."""
+
+    action: str
+    step: str
+
+
+@dataclass(frozen=True)
+class SamplesRequest:
+    """The tapped samples from sequence number ``since`` on, at most ``limit``."""
+
+    since: int
+    limit: int = MAX_SAMPLES_LIMIT
+
+
+Request = StatusRequest | CommandRequest | RouteRequest | ManeuverRequest | SamplesRequest
 
 _FIELDS: Final[dict[str, frozenset[str]]] = {
     "status": frozenset({"op"}),
     "command": frozenset({"op", "name"}),
     "route": frozenset({"op", "select"}),
+    "maneuver": frozenset({"op", "action", "step"}),
+    "samples": frozenset({"op", "since", "limit"}),
 }
 
 
@@ -102,6 +124,10 @@ def decode_request(line: bytes) -> Request:
                 f"got {_short(select)}"
             )
         return RouteRequest(select)
+    if op == "maneuver":
+        return _maneuver(message)
+    if op == "samples":
+        return _samples(message)
     name = message.get("name")
     if name not in COMMAND_NAMES:
         what = (
@@ -110,6 +136,31 @@ def decode_request(line: bytes) -> Request:
         raise RequestError(f"{what}: known commands are {', '.join(COMMAND_NAMES)}")
     assert isinstance(name, str)
     return CommandRequest(name)
+
+
+def _maneuver(message: Mapping[str, Any]) -> ManeuverRequest:
+    action, step = message.get("action"), message.get("step")
+    if action not in MANEUVER_ACTIONS:
+        raise RequestError(
+            f"maneuver needs 'action': one of {', '.join(MANEUVER_ACTIONS)}, got {_short(action)}"
+        )
+    if not isinstance(step, str) or not 0 < len(step) <= MAX_MANEUVER_NAME:
+        raise RequestError(
+            f"maneuver needs 'step': a name of 1 to {MAX_MANEUVER_NAME} characters, "
+            f"got {_short(step)}"
+        )
+    assert isinstance(action, str)
+    return ManeuverRequest(action, step)
+
+
+def _samples(message: Mapping[str, Any]) -> SamplesRequest:
+    since, limit = message.get("since"), message.get("limit", MAX_SAMPLES_LIMIT)
+    # bool is an int in Python; a JSON true is not a sequence number.
+    if not isinstance(since, int) or isinstance(since, bool) or not 0 <= since < 2**63:
+        raise RequestError(f"samples needs 'since': a sequence number >= 0, got {_short(since)}")
+    if not isinstance(limit, int) or isinstance(limit, bool) or not 1 <= limit <= MAX_SAMPLES_LIMIT:
+        raise RequestError(f"samples 'limit' must be 1..{MAX_SAMPLES_LIMIT}, got {_short(limit)}")
+    return SamplesRequest(since, limit)
 
 
 def encode_message(message: Mapping[str, Any]) -> bytes:

@@ -31,8 +31,10 @@ from typing import Any, Final, Protocol
 
 from appliance.control_protocol import (
     MAX_LINE_BYTES,
+    ManeuverRequest,
     RequestError,
     RouteRequest,
+    SamplesRequest,
     StatusRequest,
     decode_request,
     encode_message,
@@ -65,6 +67,14 @@ class ControlApi(Protocol):
 
     def select_route(self, name: str) -> tuple[bool, str]:
         """Select the route the autopilot follows; (accepted, message). Must not block."""
+        ...
+
+    def maneuver(self, action: str, step: str) -> tuple[bool, str]:
+        """Start or stop a calibration maneuver's tap; (accepted, message)."""
+        ...
+
+    def samples(self, since: int, limit: int) -> dict[str, Any]:
+        """The tapped samples from ``since`` on (see ``appliance.core.maneuver_tap``)."""
         ...
 
 
@@ -359,7 +369,31 @@ class ControlServer:
                 return error_reply(f"the daemon could not produce its status: {exc!r}")
         if isinstance(request, RouteRequest):
             return self._select_route(request.select, session)
+        if isinstance(request, ManeuverRequest):
+            return self._maneuver(request, session)
+        if isinstance(request, SamplesRequest):
+            try:
+                return {"ok": True, **self.api.samples(request.since, request.limit)}
+            except Exception as exc:
+                log.error("control_samples_failed", error=repr(exc), exc_info=exc)
+                return error_reply(f"the daemon could not give its samples: {exc!r}")
         return self._command(request.name, session)
+
+    def _maneuver(self, request: ManeuverRequest, session: _Session) -> dict[str, Any]:
+        try:
+            accepted, message = self.api.maneuver(request.action, request.step)
+        except Exception as exc:
+            log.error("maneuver", step=request.step, error=repr(exc), exc_info=exc)
+            return error_reply(f"the daemon failed to {request.action} {request.step!r}: {exc!r}")
+        log.info(
+            "maneuver",
+            action=request.action,
+            step=request.step,
+            verdict="accepted" if accepted else "refused",
+            message=message,
+            **session.peer.as_log_fields(),
+        )
+        return {"ok": True, "accepted": bool(accepted), "message": str(message)}
 
     def _select_route(self, name: str, session: _Session) -> dict[str, Any]:
         try:

@@ -523,6 +523,12 @@ class DaemonControlApi:
     def select_route(self, name: str) -> tuple[bool, str]:
         return self._daemon.core.select_route(name)
 
+    def maneuver(self, action: str, step: str) -> tuple[bool, str]:
+        return self._daemon.core.maneuver_request(action, step, self._daemon.clock())
+
+    def samples(self, since: int, limit: int) -> dict[str, Any]:
+        return self._daemon.core.maneuver.samples_since(since, limit)
+
 
 def load_vehicle_calibration(config: VehicleConfig) -> tuple[Calibration | None, str]:
     """The calibration, or None and why: the daemon still runs, but will not leave SELF_CHECK."""

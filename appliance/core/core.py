@@ -37,6 +37,7 @@ from appliance.core.autopilot import (
 )
 from appliance.core.commands import CommandPaths
 from appliance.core.inputs import ControlInputs
+from appliance.core.maneuver_tap import ManeuverTap
 from appliance.core.observe import (
     Measurements,
     board_faults,
@@ -144,6 +145,9 @@ class ControlCore:
         self.system_health = parts.system_health_params(config)
         # Told of every request and route selection, with the answer (the recorder).
         self.request_listeners: list[RequestListener] = []
+        # The calibration maneuvers' tap: kept across a core restart (the client sees the
+        # mode fall back to BOOT in the samples and aborts on it).
+        self.maneuver = ManeuverTap()
         self.reset()
 
     def reset(self) -> None:
@@ -242,6 +246,8 @@ class ControlCore:
         output = self.commands.update(self.state, operator, m, wish, tuple(self._notes), now_s)
         self._notes = []
         self.last_output = output
+        if self.maneuver.active:
+            self.maneuver.update(inputs, fresh, m, output, stale, self.faults.active_faults)
         return output
 
     # ---- bench requests (the control socket) -------------------------------------------
@@ -312,6 +318,22 @@ class ControlCore:
         self._note("route_selected" if accepted else "route_refused", route=name, message=message)
         return bool(accepted), str(message)
 
+    def maneuver_request(self, action: str, step: str, now_s: float) -> tuple[bool, str]:
+        """`dbw calibrate STEP` starts (``start``) or ends (``stop``) the tap on the cycles.
+        Only reads: the mode machine and the safety layer stay as they are. Told to the
+        request listeners, so replay taps the same cycles."""
+        if action == "start":
+            accepted, message = self.maneuver.start(step, now_s)
+        elif action == "stop":
+            accepted, message = self.maneuver.stop(now_s)
+        else:
+            accepted, message = False, f"unknown maneuver action {action!r}: start or stop"
+        if accepted:
+            self._note("maneuver_" + action, step=step, message=message)
+        for listener in self.request_listeners:
+            listener("maneuver", f"{action}:{step}", now_s, accepted, message)
+        return accepted, message
+
     def engage_blockers(self) -> tuple[str, ...]:
         """Why an engage press would be refused now (empty: it would be accepted), judged
         on the last cycle's conditions. READY means the vehicle is safe to hand over, not
@@ -328,6 +350,9 @@ class ControlCore:
         nearby = getattr(self.autopilot, "nearby", None)
         if nearby is not None:  # the route source: routes near the vehicle, engageable?
             document["routes_nearby"] = nearby()
+        maneuver = self.maneuver.status()
+        if maneuver is not None:
+            document["maneuver"] = maneuver
         pedal = self.commands.last_pedal
         if self.pedals:  # what the throttle/brake speed controller is doing, and why
             # No PC104 on this vehicle: the STOP frame nobody receives is not a command.

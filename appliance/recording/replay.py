@@ -189,6 +189,10 @@ class Replayer:
         name, kind = str(data.get("name", "")), data.get("kind")
         if kind == "select_route":
             accepted, text = self.core.select_route(name)
+        elif kind == "maneuver":
+            action, _, step = name.partition(":")
+            now_s = decode(data.get("now_s"), float)
+            accepted, text = self.core.maneuver_request(action, step, now_s)
         else:
             accepted, text = self.core.request(name, decode(data.get("now_s"), float))
         recorded = [data.get("accepted"), data.get("message")]

@@ -38,7 +38,10 @@ from appliance.control_protocol import (
     MAX_LINE_BYTES,
     CommandRequest,
     ControlSocketError,
+    ManeuverRequest,
     RequestError,
+    RouteRequest,
+    SamplesRequest,
     StatusRequest,
     decode_request,
     encode_message,
@@ -86,6 +89,23 @@ class FakeApi:
         if name == "missing":
             return False, "route 'missing' not selected: no such route"
         return True, f"route {name!r} selected"
+
+    def maneuver(self, action: str, step: str) -> tuple[bool, str]:
+        self.requests.append(f"maneuver:{action}:{step}")
+        if step == "warp":
+            return False, "unknown maneuver 'warp'"
+        return True, f"{action} {step}"
+
+    def samples(self, since: int, limit: int) -> dict[str, Any]:
+        self.requests.append(f"samples:{since}:{limit}")
+        first = max(since, 10)
+        return {
+            "step": "pot-map",
+            "active": True,
+            "samples": [{"seq": n} for n in range(first, first + min(limit, 3))],
+            "next": first + min(limit, 3),
+            "missed": first - since,
+        }
 
 
 @dataclass
@@ -342,6 +362,16 @@ async def test_a_removed_socket_file_ends_the_run_so_the_supervisor_rebinds(
         (b"[" * 5000 + b"\n", "not valid JSON"),
         (b'{"name": "engage"}\n', "missing 'op': known ops are status, command"),
         (b'{"op": "reboot"}\n', "unknown op 'reboot': known ops are status, command"),
+        (b'{"op": "maneuver", "step": "pot-map"}\n', "maneuver needs 'action'"),
+        (b'{"op": "maneuver", "action": "go", "step": "x"}\n', "maneuver needs 'action'"),
+        (b'{"op": "maneuver", "action": "start", "step": ""}\n', "maneuver needs 'step'"),
+        (b'{"op": "maneuver", "action": "start"}\n', "maneuver needs 'step'"),
+        (b'{"op": "samples"}\n', "samples needs 'since'"),
+        (b'{"op": "samples", "since": -1}\n', "samples needs 'since'"),
+        (b'{"op": "samples", "since": true}\n', "samples needs 'since'"),
+        (b'{"op": "samples", "since": 1.5}\n', "samples needs 'since'"),
+        (b'{"op": "samples", "since": 0, "limit": 0}\n', "samples 'limit' must be"),
+        (b'{"op": "samples", "since": 0, "limit": 100000}\n', "samples 'limit' must be"),
         (b'{"op": "status", "verbose": true}\n', "unknown field(s) for op 'status': 'verbose'"),
         (b'{"op": "command"}\n', "missing command 'name'"),
         (b'{"op": "command", "name": "launch"}\n', "unknown command 'launch'"),
@@ -609,7 +639,9 @@ def test_decode_request_parses_or_raises_request_error(line: bytes) -> None:
         request = decode_request(line)
     except RequestError:
         return
-    assert isinstance(request, StatusRequest | CommandRequest)
+    assert isinstance(
+        request, StatusRequest | CommandRequest | RouteRequest | ManeuverRequest | SamplesRequest
+    )
 
 
 def test_decode_request_accepts_exactly_the_protocol() -> None:
@@ -617,6 +649,30 @@ def test_decode_request_accepts_exactly_the_protocol() -> None:
     for name in COMMAND_NAMES:
         line = json.dumps({"op": "command", "name": name}).encode()
         assert decode_request(line) == CommandRequest(name)
+    assert decode_request(b'{"op": "maneuver", "action": "stop", "step": "pedals"}') == (
+        ManeuverRequest("stop", "pedals")
+    )
+    assert decode_request(b'{"op": "samples", "since": 7}') == SamplesRequest(7)
+    assert decode_request(b'{"op": "samples", "since": 0, "limit": 5}') == SamplesRequest(0, 5)
+
+
+async def test_a_maneuver_is_started_and_its_samples_read_through_the_socket(
+    short_tmp: Path,
+) -> None:
+    path = short_tmp / "control.sock"
+    async with serving(path) as served, ControlClient(path) as client:
+        started = await client.call({"op": "maneuver", "action": "start", "step": "pot-map"})
+        assert started == {"ok": True, "accepted": True, "message": "start pot-map"}
+        refused = await client.call({"op": "maneuver", "action": "start", "step": "warp"})
+        assert refused["accepted"] is False and "warp" in refused["message"]
+        reply = await client.call({"op": "samples", "since": 4, "limit": 2})
+        assert reply["ok"] is True and reply["missed"] == 6 and reply["next"] == 12
+        assert [s["seq"] for s in reply["samples"]] == [10, 11]
+        assert served.api.requests == [
+            "maneuver:start:pot-map",
+            "maneuver:start:warp",
+            "samples:4:2",
+        ]
 
 
 def test_encode_message_is_strict_json_on_one_line() -> None:
