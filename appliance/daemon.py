@@ -28,7 +28,7 @@ from appliance.config.calibration_file import (
     BUILTIN_SIMULATED,
     CalibrationError,
     dumps_calibration,
-    read_calibration_file,
+    read_vehicle_calibration,
 )
 from appliance.control_loop import ControlLoop, OperatorWatch, TopicInputs
 from appliance.control_socket import ControlServer
@@ -540,7 +540,7 @@ def load_vehicle_calibration_file(config: VehicleConfig) -> tuple[CalibrationFil
     """The validated calibration file (what the recorder keeps), or None and why."""
     path = config.paths.calibration_file
     try:
-        model = read_calibration_file(path, config.name, config.simulation.enabled)
+        model = read_vehicle_calibration(config, path)
         if str(path) == BUILTIN_SIMULATED:
             model = with_simulated_scanners(model, config)
     except CalibrationError as exc:

@@ -20,7 +20,7 @@ from appliance.config.calibration import Calibration, CalibrationFile
 from appliance.config.calibration_file import (
     CalibrationError,
     dumps_calibration,
-    read_calibration_file,
+    read_vehicle_calibration,
     write_calibration,
 )
 from appliance.config.simulated_calibration import simulated_calibration
@@ -29,7 +29,7 @@ from appliance.sim.scanner_truth import with_simulated_scanners
 
 def _read_or_exit(file: str, config: VehicleConfig) -> CalibrationFile:
     try:
-        return read_calibration_file(file, config.name, config.simulation.enabled)
+        return read_vehicle_calibration(config, file)
     except CalibrationError as exc:
         click.echo(exc.render(), err=True)
         sys.exit(EXIT_CONFIG_ERROR)

@@ -16,6 +16,9 @@ came after version 1 without a version bump, like ``counter_steer`` and ``guidan
 before them: the version says what the fields *mean*, and an optional table adds meaning
 without changing any other field's, so every version-1 file still loads unchanged.
 
+``[items.<step>]`` records how each maneuver's result was obtained (method, date, tool
+version, residuals, verdict, raw data): :mod:`appliance.config.calibration_items`.
+
 Reading and writing the file is :mod:`appliance.config.calibration_file`; the map's
 polynomial and its fit are :mod:`calibration.pot_map`; the scanner fit is
 :mod:`appliance.localization.scanner_calibration`.
@@ -39,6 +42,7 @@ from pydantic import (
     model_validator,
 )
 
+from appliance.config.calibration_items import CalibrationItems
 from calibration.pot_map import (
     MAX_POT_TO_WHEEL_COEFFS,
     wheel_rad_at,
@@ -185,6 +189,10 @@ class CalibrationFile(_Model):
     counter_steer: CounterSteerCalibration | None = None
     guidance: GuidanceCalibration | None = None
     scanners: ScannersCalibration | None = None
+    # Which dbw wrote the file, and how each maneuver's result was obtained (optional:
+    # hand-written and older files have neither).
+    tool_version: str | None = Field(None, min_length=1, max_length=40)
+    items: CalibrationItems | None = None
 
     @field_validator("created_utc")
     @classmethod

@@ -26,6 +26,7 @@ from appliance.config.calibration import (
     ScannerCalibrationEntry,
 )
 from appliance.config.loader import ConfigProblem, explain
+from appliance.config.models import VehicleConfig
 from appliance.config.simulated_calibration import simulated_calibration
 
 BUILTIN_SIMULATED = "builtin:simulated"
@@ -56,6 +57,47 @@ def load_calibration(
     when the caller says the simulation is enabled.
     """
     return Calibration.from_file(read_calibration_file(path, vehicle_name, simulation_enabled))
+
+
+def read_vehicle_calibration(
+    config: VehicleConfig, path: str | Path | None = None
+) -> CalibrationFile:
+    """The calibration file at ``path`` (default: the vehicle's) checked for this vehicle:
+    its name, the simulation, and that its steering was measured after the kit's steering
+    was installed (``kit.steering_installed_utc``)."""
+    path = config.paths.calibration_file if path is None else path
+    model = read_calibration_file(path, config.name, config.simulation.enabled)
+    installed = config.kit.steering_installed_utc
+    measured = steering_measured_utc(model)
+    if installed is not None and str(path) != BUILTIN_SIMULATED and measured < installed:
+        stamp = measured.isoformat().replace("+00:00", "Z")
+        raise CalibrationError(
+            str(path),
+            [
+                CalibrationProblem(
+                    "created_utc",
+                    f"the steering was measured {stamp}, before the kit's steering was "
+                    f"installed ({installed.isoformat().replace('+00:00', 'Z')}, "
+                    "kit.steering_installed_utc): it describes another installation; run "
+                    "`dbw calibrate pot-center` and `dbw calibrate pot-map` again",
+                )
+            ],
+        )
+    return model
+
+
+def steering_measured_utc(model: CalibrationFile) -> datetime:
+    """When the steering's numbers were measured: the oldest of the steering maneuvers'
+    records, or the file's creation where it has none."""
+    items = model.items
+    stamps = [
+        record.measured_utc
+        for record in (
+            (items.pot_centre, items.pot_map, items.palm_tree) if items is not None else ()
+        )
+        if record is not None
+    ]
+    return min(stamps) if stamps else model.created_utc
 
 
 def read_calibration_file(
@@ -228,6 +270,9 @@ def _toml_value(value: object) -> str:
         return _toml_string(value.astimezone(UTC).isoformat().replace("+00:00", "Z"))
     if isinstance(value, tuple | list):
         return "[" + ", ".join(_toml_value(item) for item in value) + "]"
+    if isinstance(value, Mapping):  # an inline table, every key quoted
+        pairs = ", ".join(f"{_toml_string(str(k))} = {_toml_value(v)}" for k, v in value.items())
+        return "{" + (f" {pairs} " if pairs else "") + "}"
     raise TypeError(f"no TOML form for {type(value).__name__}")
 
 

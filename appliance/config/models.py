@@ -11,10 +11,11 @@ of mistake that must not reach a nine-ton vehicle.
 from __future__ import annotations
 
 import ipaddress
+from datetime import UTC, datetime
 from enum import StrEnum
 from typing import Annotated, Literal, Self
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import AwareDatetime, BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from drivers.gnss.client import BAUDRATES_BPS as GNSS_BAUDRATES_BPS
 from drivers.pc104.endpoint import SLCAN_BITRATES_BPS, CanInterface
@@ -383,6 +384,22 @@ class Supervision(_Model):
         return self
 
 
+class Kit(_Model):
+    """The kit's installation on this vehicle, as far as its calibration depends on it."""
+
+    # When the steering servo, its pot or their linkage were last mounted or changed: a
+    # calibration whose steering was measured before then describes another installation,
+    # and the daemon refuses it. None: not recorded (no such check).
+    steering_installed_utc: AwareDatetime | None = None
+
+    @field_validator("steering_installed_utc")
+    @classmethod
+    def _in_utc(cls, value: datetime | None) -> datetime | None:
+        if value is not None and value.utcoffset() != UTC.utcoffset(None):
+            raise ValueError(f"must be in UTC, ending in Z (got {value.isoformat()})")
+        return value
+
+
 class Paths(_Model):
     state_dir: str = Field("var/dbw", min_length=1)
     calibration_file: str = Field("var/dbw/calibration.toml", min_length=1)
@@ -549,6 +566,7 @@ class VehicleConfig(_Model):
     speed_path: Literal["pc104", "pedals"] = "pc104"
     supervision: Supervision = Supervision()
     paths: Paths = Paths()
+    kit: Kit = Kit()
     recording: Recording = Recording()
     system_monitor: SystemMonitor = SystemMonitor()
     live_view: LiveView = LiveView()
