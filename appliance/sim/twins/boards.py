@@ -86,8 +86,12 @@ class SteeringTwin(BoardTwin[SteeringCommand]):
 
         A person is stronger than the servo: the wheel goes where they hold it, and a servo
         in position mode stalls against them at its torque limit, which is what the host's
-        override rule sees (pot far from the command, servo torque high).
+        override rule sees (pot far from the command, servo torque high). Nobody turns
+        it past its lock, however hard they try.
         """
+        if wheel_rad is not None:
+            lock = self.params.wheel_limit_rad
+            wheel_rad = max(-lock, min(lock, wheel_rad))
         self._hands_wheel_rad = wheel_rad
 
     def inject_torque_loss(self, torque_scale: float = 0.0) -> None:

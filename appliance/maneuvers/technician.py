@@ -1,0 +1,131 @@
+"""The simulated technician: the hands and feet a calibration maneuver done by hand needs.
+
+On the vehicle a technician turns the wheel and presses the pedals while ``dbw calibrate
+STEP`` watches through the daemon. On the simulated vehicle nobody sits in the cab, so
+this module plays that part through the bench socket (``appliance.sim.bench``), as a
+person would: the wheel turned at a hand's pace and held still in the pauses, the
+vehicle driven straight with a driver's small corrections. It knows only what a person
+at the wheel knows (where the wheel stops, how long to pause), nothing of the pot's
+mapping the maneuver measures.
+
+The schedules are pure (time in, wheel angle and pedal out); :func:`play` sends them.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import math
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+from appliance.control_client import ControlClient
+
+HALF_TURN_RAD = math.pi
+
+
+@dataclass(frozen=True)
+class Pose:
+    """What the technician does from ``t_s`` on (until the next pose)."""
+
+    t_s: float
+    wheel_rad: float | None  # None: hands off the wheel
+    throttle_pct: float = 0.0
+
+
+def pot_map_schedule(
+    lock_rad: float,
+    *,
+    half_turn_rad: float = HALF_TURN_RAD,
+    pause_s: float = 2.0,
+    rate_rad_per_s: float = 1.5,
+    step_s: float = 0.05,
+) -> list[Pose]:
+    """Stanley et al., Fig. 17: from the centre to full right, then half turns with
+    pauses to full left, and back the same way to full right; then the centre, hands off.
+    Right is negative (left positive, as everywhere in dbw)."""
+    stops = [-lock_rad]
+    while stops[-1] + half_turn_rad < lock_rad - 1e-9:
+        stops.append(stops[-1] + half_turn_rad)
+    stops.append(lock_rad)
+    stops += stops[-2::-1]  # back to full right through the same stops
+    poses: list[Pose] = []
+    t_s, wheel = 0.0, 0.0
+    for stop in [*stops, 0.0]:
+        t_s, wheel = _ramp(poses, t_s, wheel, stop, rate_rad_per_s, step_s)
+        poses.append(Pose(t_s, wheel))
+        t_s += pause_s
+    poses.append(Pose(t_s, None))
+    return poses
+
+
+def straight_drive_schedule(
+    duration_s: float,
+    *,
+    throttle_pct: float = 30.0,
+    correction_rad: float = 0.05,
+    correction_period_s: float = 7.0,
+    step_s: float = 0.1,
+) -> list[Pose]:
+    """Stanley et al.'s first step: along a visual reference, the wheel near straight
+    with slow small corrections (a driver's, a few hundredths of a radian), then off
+    the throttle."""
+    poses = []
+    for i in range(int(duration_s / step_s)):
+        t_s = i * step_s
+        wheel = correction_rad * math.sin(2.0 * math.pi * t_s / correction_period_s)
+        poses.append(Pose(t_s, wheel, throttle_pct))
+    poses.append(Pose(duration_s, 0.0, 0.0))
+    poses.append(Pose(duration_s + 1.0, None, 0.0))
+    return poses
+
+
+def _ramp(
+    poses: list[Pose], t_s: float, wheel: float, target: float, rate: float, step_s: float
+) -> tuple[float, float]:
+    steps = max(1, math.ceil(abs(target - wheel) / (rate * step_s)))
+    start = wheel
+    for k in range(1, steps + 1):
+        t_s += step_s
+        poses.append(Pose(t_s, start + (target - start) * k / steps))
+    return t_s, target
+
+
+async def play(
+    bench_path: str,
+    poses: Sequence[Pose],
+    *,
+    clock: Callable[[], float] = time.monotonic,
+    speed: float = 1.0,
+) -> None:
+    """Act out ``poses`` on the simulated vehicle's bench, on time; hands off and feet
+    off at the end, whatever ends it."""
+    async with ControlClient(bench_path, timeout_s=5.0) as bench:
+        started = clock()
+        throttle: float | None = None
+        try:
+            for pose in poses:
+                delay = started + pose.t_s / speed - clock()
+                if delay > 0:
+                    await asyncio.sleep(delay)
+                await _call(bench, {"op": "hands", "wheel_rad": pose.wheel_rad})
+                if pose.throttle_pct != throttle:
+                    throttle = pose.throttle_pct
+                    await _pedal(bench, throttle)
+        finally:
+            await asyncio.shield(_let_go(bench))
+
+
+async def _let_go(bench: ControlClient) -> None:
+    await _call(bench, {"op": "hands", "wheel_rad": None})
+    await _pedal(bench, 0.0)
+
+
+async def _pedal(bench: ControlClient, pct: float) -> None:
+    await _call(bench, {"op": "pedal", "pedal": "throttle", "pct": pct})
+
+
+async def _call(bench: ControlClient, request: dict[str, object]) -> None:
+    reply = await bench.call(request)
+    if not reply.get("ok"):
+        raise RuntimeError(f"the bench refused {request}: {reply.get('error')}")
