@@ -80,7 +80,7 @@ def read_recording(path: str) -> Recording:
 
 @click.group()
 def calibrate() -> None:
-    """Measure calibrations on the vehicle (the scanners at the docked pose)."""
+    """Measure calibrations on the vehicle: the steering maneuvers, the scanners."""
 
 
 @calibrate.command("scanners")

@@ -9,6 +9,7 @@ import click
 
 from appliance import __version__
 from appliance.cli.calibrate import calibrate
+from appliance.cli.calibrate_maneuvers import add_maneuver_commands
 from appliance.cli.calibration import calibration
 from appliance.cli.common import CONFIG_OPTION, load_or_exit
 from appliance.cli.config import config
@@ -73,6 +74,7 @@ cli.add_command(replay)
 cli.add_command(lms111)
 cli.add_command(sim)
 cli.add_command(calibration)
+add_maneuver_commands(calibrate)
 cli.add_command(calibrate)
 cli.add_command(features)
 cli.add_command(localize)

@@ -523,6 +523,17 @@ class OperatorPageSettings(_Model):
         return self
 
 
+class SimSteering(_Model):
+    """The simulated steering's installation: what a calibration measures and must not
+    be told. The built-in simulated calibration assumes the defaults, so changing these
+    gives a daemon whose calibration is off, as on a vehicle whose pot was remounted."""
+
+    pot_centre_counts: float = Field(2131.0, ge=500.0, le=3600.0)
+    # The servo's relative encoder reads this much less than the wheel's angle.
+    encoder_offset_rad: float = Field(0.0, ge=-100.0, le=100.0)
+    pot_seed: int = Field(0, ge=0, le=2**32 - 1)
+
+
 class Simulation(_Model):
     """The built-in simulated vehicle: the world and the twins of every device."""
 
@@ -543,6 +554,7 @@ class Simulation(_Model):
     scanner_model: Literal["realistic", "ideal"] = "realistic"
     # Draws each scanner's systematic and mount errors (one vehicle per seed), and its noise.
     scanner_seed: int = Field(1, ge=0, le=2**32 - 1)
+    steering: SimSteering = SimSteering()
 
 
 class VehicleConfig(_Model):

@@ -108,6 +108,11 @@ def _apply(data: dict[str, Any], result: StepResult) -> None:
     data["items"] = {**(items or {}), result.item: result.record.model_dump()}
 
 
+def draft_values(config: VehicleConfig, path: str | Path) -> dict[str, Any]:
+    """What the draft beside ``path`` holds so far ({} without a draft)."""
+    return _draft_data(config, Path(path)) if draft_path(path).exists() else {}
+
+
 def _draft_data(config: VehicleConfig, path: Path) -> dict[str, Any]:
     draft = draft_path(path)
     if not draft.exists():

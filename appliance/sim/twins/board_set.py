@@ -41,6 +41,7 @@ class ActuatorTwins:
         telemetry_period_s: float = 0.01,
         servo_params: ServoParams | None = None,
         pot_mapping: PotMapping | None = None,
+        encoder_offset_rad: float = 0.0,
         seed: int = 0,
     ) -> None:
         self._own_directory = directory is None
@@ -52,6 +53,7 @@ class ActuatorTwins:
             world,
             params=servo_params,
             pot_mapping=pot_mapping,
+            encoder_offset_rad=encoder_offset_rad,
             seed=seed,
             **timing,
         )
@@ -69,7 +71,15 @@ class ActuatorTwins:
     def from_config(
         cls, config: VehicleConfig, world: SimWorld | None, directory: str | None = None
     ) -> ActuatorTwins:
-        twins = cls(world, directory, command_timeout_s=config.safety.lower_layer_command_timeout_s)
+        steering = config.simulation.steering
+        twins = cls(
+            world,
+            directory,
+            command_timeout_s=config.safety.lower_layer_command_timeout_s,
+            pot_mapping=PotMapping(centre_counts=steering.pot_centre_counts),
+            encoder_offset_rad=steering.encoder_offset_rad,
+            seed=steering.pot_seed,
+        )
         twins.throttle.pedal_drives_engine = config.speed_path == "pedals"
         return twins
 

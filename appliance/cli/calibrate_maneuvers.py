@@ -1,0 +1,250 @@
+"""`dbw calibrate STEP` and `dbw calibrate fit FILE`: the maneuvers, run against the daemon.
+
+Each step checks its preconditions (and says every one that fails), prompts the
+technician, asks for the area-clear confirmation, taps the daemon's cycles while the
+technician does the maneuver, shows coverage and an ETA, and ends on completion, Ctrl-C,
+a timeout, or anything that makes the data worthless or the vehicle unsafe
+(``appliance.maneuvers.runner``). The raw samples go to a file as they arrive (``--samples``;
+``--resume FILE`` continues an interrupted run), and the daemon's recorder keeps the same
+cycles. Then the fit: its method, residuals and verdict are printed, a PNG is drawn, and
+an accepted result is merged into the calibration file atomically
+(``appliance.maneuvers.merge``). `dbw calibrate fit FILE` fits a samples file again.
+
+Exit status: 0 accepted (and merged unless --no-merge), 1 refused, aborted or not
+accepted (the calibration file untouched), 2 bad input or no daemon.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import sys
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any, NoReturn
+
+import click
+
+from appliance import __version__
+from appliance.cli.common import CONFIG_OPTION, EXIT_CONFIG_ERROR, draw_png, load_or_exit
+from appliance.config import VehicleConfig
+from appliance.config.calibration import CalibrationFile
+from appliance.config.calibration_file import BUILTIN_SIMULATED, CalibrationError
+from appliance.config.calibration_file import read_vehicle_calibration
+from appliance.control_client import ControlClient
+from appliance.control_protocol import ControlSocketError
+from appliance.maneuvers.merge import MergeError, draft_values, merge_result
+from appliance.maneuvers.report import FitReport
+from appliance.maneuvers.runner import ManeuverRunner, RefusedError
+from appliance.maneuvers.samples_file import (
+    SamplesFileError,
+    SamplesWriter,
+    header,
+    read_samples_file,
+)
+from appliance.maneuvers.steps import STEP_CLASSES, StepContext
+
+EXIT_NOT_ACCEPTED = 1
+
+
+def _fail(message: str, code: int = EXIT_CONFIG_ERROR) -> NoReturn:
+    click.echo(f"dbw calibrate: {message}", err=True)
+    sys.exit(code)
+
+
+def _existing(config: VehicleConfig, path: str) -> CalibrationFile | None:
+    """The calibration the step builds on, or None (a first installation)."""
+    if path != BUILTIN_SIMULATED and not Path(path).exists():
+        return None
+    try:
+        return read_vehicle_calibration(config, path)
+    except CalibrationError as exc:
+        click.echo(f"note: {exc.render()}\n(the step runs without it)", err=True)
+        return None
+
+
+def _context(config: VehicleConfig, target: str, extra: dict[str, Any]) -> StepContext:
+    """What a step builds on: the calibration file, else (a first installation) what
+    the draft already holds (the pot centre the pot map is measured from)."""
+    existing = _existing(config, target)
+    options = dict(extra)
+    if existing is None and target != BUILTIN_SIMULATED:
+        try:
+            steering = draft_values(config, target).get("steering", {})
+        except MergeError as exc:
+            _fail(str(exc))
+        if "pot_centre_counts" in steering:
+            options.setdefault("x_pot_centre_counts", steering["pot_centre_counts"])
+    return StepContext(config, existing, options)
+
+
+def _step_options(command: Any) -> Any:
+    options = [
+        CONFIG_OPTION,
+        click.option("--socket", "socket_path", metavar="PATH", help="The control socket."),
+        click.option(
+            "--calibration",
+            "calibration_path",
+            metavar="FILE",
+            help="The calibration file to merge into (default: paths.calibration_file).",
+        ),
+        click.option("--samples", "samples_path", metavar="FILE", help="Where the raw samples go."),
+        click.option(
+            "--resume", "resume_path", metavar="FILE", help="Continue an interrupted run."
+        ),
+        click.option("--yes", is_flag=True, help="Confirm the area is clear without asking."),
+        click.option("--timeout", "timeout_s", type=click.FloatRange(min=1.0), default=900.0),
+        click.option("--png", "png_path", metavar="FILE", help="The figure (default: beside)."),
+        click.option("--no-merge", is_flag=True, help="Fit and report; leave the file alone."),
+    ]
+    for option in reversed(options):
+        command = option(command)
+    return command
+
+
+def _run_step(
+    step_name: str,
+    config_name: str | None,
+    socket_path: str | None,
+    calibration_path: str | None,
+    samples_path: str | None,
+    resume_path: str | None,
+    yes: bool,
+    timeout_s: float,
+    png_path: str | None,
+    no_merge: bool,
+    extra: dict[str, Any],
+) -> None:
+    from appliance.cli.control import _socket_path
+
+    config = load_or_exit(config_name)
+    target = calibration_path or config.paths.calibration_file
+    step = STEP_CLASSES[step_name](_context(config, target, extra))
+    stamp = datetime.now(UTC).strftime("%Y%m%dT%H%M%SZ")
+    if resume_path is not None:
+        try:
+            previous = read_samples_file(resume_path, config.name)
+        except SamplesFileError as exc:
+            _fail(str(exc))
+        if previous.step != step_name:
+            _fail(f"{resume_path} holds a {previous.step} run, not {step_name}")
+        for sample in previous.samples:
+            step.update(sample)
+        path = Path(resume_path)
+        writer = SamplesWriter(path, None)
+        writer.mark("resumed", samples=len(previous.samples))
+        click.echo(f"resuming {path}: {len(previous.samples)} samples taken before")
+    else:
+        path = Path(samples_path or f"{step_name}-{stamp}.jsonl")
+        try:
+            writer = SamplesWriter(path, header(step_name, config.name, __version__, stamp))
+        except OSError as exc:
+            _fail(f"{path}: cannot write the samples: {exc}")
+
+    def confirm(question: str) -> bool:
+        return yes or click.confirm(question, default=False)
+
+    async def run() -> Any:
+        async with ControlClient(_socket_path(socket_path, config_name), timeout_s=5.0) as client:
+            runner = ManeuverRunner(
+                step, client, writer, sys.stdout, timeout_s=timeout_s, confirm=confirm
+            )
+            return await runner.run()
+
+    try:
+        outcome = asyncio.run(run())
+    except RefusedError as exc:
+        _fail(f"{step_name} refused: {exc}", EXIT_NOT_ACCEPTED)
+    except ControlSocketError as exc:
+        _fail(str(exc))
+    except KeyboardInterrupt:
+        _fail(f"interrupted; the calibration is untouched; resume with --resume {path}", 1)
+    finally:
+        writer.close()
+    click.echo(f"{step_name}: {outcome.reason} ({outcome.samples} samples, {outcome.missed} lost)")
+    if not outcome.complete:
+        _fail(
+            f"the calibration is untouched; resume with: dbw calibrate {step_name} "
+            f"--resume {path}",
+            EXIT_NOT_ACCEPTED,
+        )
+    _fit_and_merge(step_name, config, path, target, png_path, no_merge, extra)
+
+
+def _fit_and_merge(
+    step_name: str,
+    config: VehicleConfig,
+    samples: Path,
+    target: str,
+    png_path: str | None,
+    no_merge: bool,
+    extra: dict[str, Any],
+    as_json: bool = False,
+) -> None:
+    try:
+        data = read_samples_file(samples, config.name)
+    except SamplesFileError as exc:
+        _fail(str(exc))
+    if data.torn_last_line:
+        click.echo(f"note: {samples}: the last line was cut short and is left out", err=True)
+    step = STEP_CLASSES[data.step](_context(config, target, extra))
+    report: FitReport = step.fit(data.samples, raw_data=str(samples))
+    if as_json:
+        click.echo(json.dumps({"step": report.step, "accepted": report.accepted,
+                               "reasons": list(report.reasons), **report.figures}))
+    else:
+        for line in report.lines:
+            click.echo(line)
+    if report.draw is not None:
+        png = png_path or str(samples.with_suffix(".png"))
+        problem = draw_png(png, report.draw)
+        click.echo(f"figure: {problem or png}", err=as_json)
+    if not report.accepted or report.result is None:
+        _fail("not accepted: " + "; ".join(report.reasons), EXIT_NOT_ACCEPTED)
+    if no_merge:
+        click.echo("accepted; not merged (--no-merge)", err=as_json)
+        return
+    try:
+        click.echo(merge_result(config, target, report.result), err=as_json)
+    except (MergeError, OSError, ValueError) as exc:
+        _fail(f"accepted but not merged: {exc}")
+
+
+def add_maneuver_commands(group: click.Group) -> None:
+    """Register one command per step, and `fit`, on the `dbw calibrate` group."""
+    for name, step_class in STEP_CLASSES.items():
+        group.add_command(_step_command(name, step_class.summary, step_class.extra_options))
+    group.add_command(fit)
+
+
+def _step_command(name: str, summary: str, extra_options: tuple[Any, ...]) -> click.Command:
+    def command(**kwargs: Any) -> None:
+        extra = {key: kwargs.pop(key) for key in list(kwargs) if key.startswith("x_")}
+        _run_step(name, extra=extra, **kwargs)
+
+    command.__doc__ = summary
+    decorated = _step_options(command)
+    for option in extra_options:
+        decorated = option(decorated)
+    return click.command(name)(decorated)
+
+
+@click.command("fit")
+@click.argument("file")
+@CONFIG_OPTION
+@click.option("--calibration", "calibration_path", metavar="FILE", help="The file to merge into.")
+@click.option("--png", "png_path", metavar="FILE", help="The figure (default: beside FILE).")
+@click.option("--merge", is_flag=True, help="Merge an accepted result into the calibration.")
+@click.option("--json", "as_json", is_flag=True, help="Print the figures as one JSON object.")
+def fit(
+    file: str,
+    config_name: str | None,
+    calibration_path: str | None,
+    png_path: str | None,
+    merge: bool,
+    as_json: bool,
+) -> None:
+    """Fit a maneuver's samples FILE again (offline; the daemon is not needed)."""
+    config = load_or_exit(config_name)
+    target = calibration_path or config.paths.calibration_file
+    _fit_and_merge("", config, Path(file), target, png_path, not merge, {}, as_json)

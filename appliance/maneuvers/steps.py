@@ -1,0 +1,423 @@
+"""The steering steps done by hand: pot centre and pot map (Stanley et al., Fig. 17).
+
+Each step is the glue between the daemon's tapped samples and a pure fit in
+``calibration/``: which samples it needs fresh, what the technician is told, what breaks
+the maneuver (moving during a stationary step), how complete the coverage is, and how the
+fit's numbers become the calibration file's. The fits decide; the steps only translate.
+
+Both steps watch and never command: the technician turns the wheel and drives, the daemon
+stays out of automatic modes (engaging during a hand maneuver aborts it), so the safety
+layer has nothing to refuse.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any, ClassVar
+
+import click
+import numpy as np
+
+from appliance.config.calibration import CalibrationFile
+from appliance.config.models import VehicleConfig
+from appliance.maneuvers.merge import StepResult
+from appliance.maneuvers.report import FitReport, item_record
+from appliance.maneuvers.runner import Progress
+from calibration.pot_centre import PotCentreAccumulator, PotCentreResult
+from calibration.pot_map import PotMapAccumulator, PotMapResult, wheel_rad_at
+
+BAR_WIDTH = 20
+STILL_MPS = 0.05  # a stationary step: faster than this, the vehicle is moving
+MAX_FIX_AGE_S = 0.5
+
+
+@dataclass(frozen=True)
+class StepContext:
+    config: VehicleConfig
+    calibration: CalibrationFile | None  # what the step builds on (None: first install)
+    options: Mapping[str, Any] = field(default_factory=dict)
+
+
+def bar(fraction: float) -> str:
+    filled = int(round(max(0.0, min(1.0, fraction)) * BAR_WIDTH))
+    return "#" * filled + "." * (BAR_WIDTH - filled)
+
+
+def _number(sample: Mapping[str, Any], key: str) -> float | None:
+    value = sample.get(key)
+    return float(value) if isinstance(value, int | float) and math.isfinite(value) else None
+
+
+def _speed(sample: Mapping[str, Any]) -> float | None:
+    speed = _number(sample, "speed_mps")
+    return speed if speed is not None else _number(sample, "gnss_speed_mps")
+
+
+class HandStep:
+    """What the steps done by hand share: they end if the operator engages."""
+
+    name: ClassVar[str]
+    summary: ClassVar[str]
+    extra_options: ClassVar[tuple[Any, ...]] = ()
+    instructions: tuple[str, ...] = ()
+    moves_vehicle = False
+    needed_inputs: tuple[str, ...] = ("board.steering", "steering.pot")
+
+    def __init__(self, context: StepContext) -> None:
+        self.context = context
+        self.reset()
+
+    def reset(self) -> None:
+        pass
+
+    def preconditions(self, status: Mapping[str, Any]) -> list[str]:
+        problems = []
+        mode = str(status.get("mode"))
+        if mode not in ("self_check", "ready"):
+            problems.append(
+                f"the daemon is in {mode.upper()}: a maneuver by hand needs it in READY or "
+                "SELF_CHECK (disengage first)"
+            )
+        if status.get("vehicle") != self.context.config.name:
+            problems.append(
+                f"the daemon runs vehicle {status.get('vehicle')!r}, not "
+                f"{self.context.config.name!r}: give the right --config"
+            )
+        return problems
+
+    def update(self, sample: Mapping[str, Any]) -> str | None:
+        if sample.get("engaged"):
+            return "the operator engaged: a maneuver by hand runs with the autopilot off"
+        return self.take(sample)
+
+    def take(self, sample: Mapping[str, Any]) -> str | None:
+        raise NotImplementedError
+
+    def steering_ratio(self) -> float:
+        ratio = self.context.options.get("x_steering_ratio")
+        if isinstance(ratio, int | float) and ratio > 0:
+            return float(ratio)
+        if self.context.calibration is not None:
+            return self.context.calibration.steering.steering_ratio
+        raise click.UsageError(
+            "no calibration to take the steering ratio from: give --steering-ratio (the "
+            "steering gear's, from its data sheet; the palm tree measures it later)"
+        )
+
+
+class PotCentreStep(HandStep):
+    name = "pot-center"
+    summary = "Drive straight along a visual reference: the pot's straight-ahead reading."
+    extra_options = (
+        click.option(
+            "--counts-per-tyre-deg",
+            "x_counts_per_tyre_deg",
+            type=float,
+            help="The pot's slope, where no calibration gives it (first installation).",
+        ),
+    )
+    needed_inputs = ("board.steering", "steering.pot")
+    instructions = (
+        "pot-center: drive straight along a visual reference (a kerb, a painted line),",
+        "  at a steady speed above 1 m/s, for at least three stretches of 10 m or more",
+        "  (100 m in all). Turn around between stretches as you like: turns are left out.",
+    )
+
+    def reset(self) -> None:
+        self.accumulator = PotCentreAccumulator()
+        self._checked = 0
+        self._coverage_at = -1
+
+    def preconditions(self, status: Mapping[str, Any]) -> list[str]:
+        problems = super().preconditions(status)
+        gnss = status.get("gnss")
+        epoch = gnss.get("epoch") if isinstance(gnss, dict) else None
+        if not isinstance(epoch, dict) or epoch.get("yaw_rate_rad_per_s") is None:
+            problems.append(
+                "no GNSS/INS heading rate: the straight stretches are found from it "
+                "(is the receiver connected and fixed?)"
+            )
+        return problems
+
+    def take(self, sample: Mapping[str, Any]) -> str | None:
+        pot = _number(sample, "pot_counts")
+        speed = _speed(sample)
+        yaw_rate = _number(sample, "yaw_rate_rad_per_s")
+        t_s = _number(sample, "t_s")
+        if pot is None or speed is None or yaw_rate is None or t_s is None:
+            return None  # counted by the fit as missing, never a reason to stop
+        gnss_t = _number(sample, "gnss_time_s")
+        fix_ok = gnss_t is not None and t_s - gnss_t <= MAX_FIX_AGE_S
+        self.accumulator.update(t_s, pot, yaw_rate, abs(speed), 0.0, fix_ok)
+        return None
+
+    def progress(self) -> Progress:
+        coverage = self.accumulator.coverage()
+        fraction = min(
+            coverage.segments / coverage.segments_needed,
+            coverage.distance_m / coverage.distance_needed_m,
+        )
+        return Progress(
+            min(1.0, fraction),
+            bar(fraction),
+            f"{coverage.segments}/{coverage.segments_needed} straight stretches, "
+            f"{coverage.distance_m:.0f}/{coverage.distance_needed_m:.0f} m",
+        )
+
+    def complete(self) -> bool:
+        return self.accumulator.coverage().complete
+
+    def counts_per_tyre_deg(self) -> float:
+        given = self.context.options.get("x_counts_per_tyre_deg")
+        if isinstance(given, int | float) and given != 0:
+            return float(given)
+        calibration = self.context.calibration
+        if calibration is None:
+            raise click.UsageError(
+                "no calibration to take the pot's slope from: give --counts-per-tyre-deg"
+            )
+        steering = calibration.steering
+        slope_rad_per_count = float(wheel_rad_at(steering.pot_to_wheel_coeffs, 1.0))
+        return math.radians(1.0) * steering.steering_ratio / slope_rad_per_count
+
+    def fit(self, samples: Sequence[Mapping[str, Any]], raw_data: str | None) -> FitReport:
+        self.reset()
+        for sample in samples:
+            self.take(sample)
+        result = self.accumulator.fit(self.counts_per_tyre_deg())
+        return pot_centre_report(result, len(samples), raw_data)
+
+
+def pot_centre_report(result: PotCentreResult, taken: int, raw_data: str | None) -> FitReport:
+    verdict = result.verdict
+    missing = taken - result.samples
+    rejected = {**result.rejected, **({"no reading": missing} if missing else {})}
+    centre = result.centre_counts
+    lines = [
+        f"pot centre: {'%.1f counts' % centre if centre is not None else 'none found'} "
+        f"from {result.segments_used} straight stretch(es), {result.distance_m:.0f} m",
+        f"  spread between stretches {result.spread_tyre_deg:.3f} deg tyre "
+        f"(std error {result.standard_error_tyre_deg:.3f} deg), within stretches "
+        f"{result.within_segment_std_tyre_deg:.3f} deg",
+        f"  samples {taken}: used {result.accepted}, rejected "
+        + (", ".join(f"{k} {v}" for k, v in rejected.items() if v) or "none"),
+        f"  method: {result.method}",
+        "  verdict: " + ("ACCEPTED" if verdict.accepted else "REFUSED: " + "; ".join(verdict.reasons)),
+    ]
+    step_result = None
+    if verdict.accepted and centre is not None:
+        record = item_record(
+            method=result.method,
+            accepted=True,
+            residual_rms=result.spread_tyre_deg,
+            residual_max=max(
+                (abs(s.centre_counts - centre) for s in result.segments if s.used), default=0.0
+            )
+            / abs(result.counts_per_tyre_deg),
+            residual_unit="deg tyre",
+            samples_used=result.accepted,
+            rejected=rejected,
+            summary=lines[0],
+            raw_data=raw_data,
+        )
+        step_result = StepResult("pot_centre", {"steering.pot_centre_counts": centre}, record)
+    return FitReport(
+        step="pot-center",
+        accepted=step_result is not None,
+        lines=tuple(lines),
+        reasons=verdict.reasons,
+        result=step_result,
+        draw=lambda plt: _draw_pot_centre(plt, result),
+        figures={
+            "pot_centre_counts": centre,
+            "segments": result.segments_used,
+            "distance_m": result.distance_m,
+            "spread_tyre_deg": result.spread_tyre_deg,
+        },
+    )
+
+
+def _draw_pot_centre(plt: Any, result: PotCentreResult) -> Any:
+    figure, axes = plt.subplots(figsize=(7, 4))
+    for segment in result.segments:
+        axes.errorbar(
+            [0.5 * (segment.start_t_s + segment.end_t_s)],
+            [segment.centre_counts],
+            yerr=[segment.std_counts],
+            fmt="o" if segment.used else "x",
+            color="tab:blue" if segment.used else "tab:red",
+        )
+    if result.centre_counts is not None:
+        axes.axhline(result.centre_counts, color="k", lw=1, label="centre")
+        axes.legend()
+    axes.set_xlabel("time (s)")
+    axes.set_ylabel("pot at zero curvature (counts)")
+    axes.set_title("pot centre: one estimate per straight stretch")
+    return figure
+
+
+class PotMapStep(HandStep):
+    name = "pot-map"
+    summary = "Stationary: turn the wheel lock to lock in half turns (Fig. 17): the pot map."
+    extra_options = (
+        click.option(
+            "--steering-ratio",
+            "x_steering_ratio",
+            type=click.FloatRange(min=1.0, max=60.0),
+            help="Steering-wheel rad per tyre rad, where no calibration gives it.",
+        ),
+    )
+    instructions = (
+        "pot-map: with the vehicle standing still, engine running, servo released:",
+        "  turn the steering wheel to full RIGHT lock and let it rest 2 s;",
+        "  then turn it LEFT half a turn at a time, resting 2 s after each, to full left;",
+        "  then back RIGHT the same way, half turns with rests, to full right.",
+    )
+
+    def reset(self) -> None:
+        self.accumulator = PotMapAccumulator()
+        self._coverage_rows = -1
+        self._coverage = self.accumulator.coverage()
+        self._rows = 0
+
+    def take(self, sample: Mapping[str, Any]) -> str | None:
+        speed = _speed(sample)
+        if speed is not None and abs(speed) > STILL_MPS:
+            return f"the vehicle moved ({speed:.2f} m/s): the pot map is measured standing"
+        pot = _number(sample, "pot_counts")
+        encoder = _number(sample, "servo_position_rad")
+        t_s = _number(sample, "t_s")
+        if pot is None or encoder is None or t_s is None:
+            return None
+        # By hand nothing is commanded: the wheel is where the hands hold it.
+        command = _number(sample, "steer_setpoint_rad")
+        self.accumulator.update(t_s, encoder, pot, encoder if command is None else command)
+        self._rows += 1
+        return None
+
+    def coverage(self) -> Any:
+        if self._coverage_rows != self._rows:
+            self._coverage = self.accumulator.coverage()
+            self._coverage_rows = self._rows
+        return self._coverage
+
+    def progress(self) -> Progress:
+        c = self.coverage()
+        need = self.accumulator.params.min_pauses_per_direction
+        fraction = (min(c.pauses_up, need) + min(c.pauses_down, max(need, c.pauses_up))) / (
+            need + max(need, c.pauses_up)
+        )
+        span = (
+            f", encoder {c.encoder_min_rad:+.1f}..{c.encoder_max_rad:+.1f} rad"
+            if c.encoder_min_rad is not None
+            else ""
+        )
+        return Progress(
+            fraction, bar(fraction), f"rests: {c.pauses_up} going left, {c.pauses_down} back{span}"
+        )
+
+    def complete(self) -> bool:
+        """Back at the start: as many rests on the way back as on the way out."""
+        c = self.coverage()
+        need = self.accumulator.params.min_pauses_per_direction
+        return c.pauses_up >= need and c.pauses_down >= c.pauses_up
+
+    def fit(self, samples: Sequence[Mapping[str, Any]], raw_data: str | None) -> FitReport:
+        self.reset()
+        for sample in samples:
+            self.take(sample)
+        calibration = self.context.calibration
+        centre = None if calibration is None else calibration.steering.pot_centre_counts
+        centre = self.context.options.get("x_pot_centre_counts", centre)
+        result = self.accumulator.fit(self.steering_ratio(), centre)
+        return pot_map_report(result, len(samples), raw_data, self.steering_ratio())
+
+
+def pot_map_report(
+    result: PotMapResult, taken: int, raw_data: str | None, steering_ratio: float
+) -> FitReport:
+    verdict = result.verdict
+    missing = taken - result.samples
+    rejected = {**result.rejected, **({"no reading": missing} if missing else {})}
+    lines = [
+        f"pot map: {sum(1 for p in result.pauses if p.used)} rests used of "
+        f"{len(result.pauses)}, counts {result.usable_min_counts:.0f}..{result.usable_max_counts:.0f}"
+        f" (valid {result.pot_valid_min_counts}..{result.pot_valid_max_counts})",
+        f"  centre {result.pot_centre_counts} ({result.centre_from}), backlash "
+        f"{result.backlash_rad:.4f} rad of wheel (+-{result.backlash_std_error_rad:.4f}), "
+        f"monotonic {'yes' if result.monotonic else 'NO'}",
+        f"  residuals {result.residual_rms_tyre_deg:.3f} deg tyre rms, "
+        f"{result.residual_max_tyre_deg:.3f} max",
+        f"  samples {taken}: used {result.accepted}, rejected "
+        + (", ".join(f"{k} {v}" for k, v in rejected.items() if v) or "none"),
+        f"  method: {result.method}",
+        "  verdict: " + ("ACCEPTED" if verdict.accepted else "REFUSED: " + "; ".join(verdict.reasons)),
+    ]
+    step_result = None
+    if verdict.accepted and result.pot_centre_counts is not None:
+        values: dict[str, Any] = {
+            "steering.pot_centre_counts": result.pot_centre_counts,
+            "steering.pot_to_wheel_coeffs": list(result.pot_to_wheel_coeffs),
+            "steering.pot_valid_min_counts": result.pot_valid_min_counts,
+            "steering.pot_valid_max_counts": result.pot_valid_max_counts,
+            "steering.steering_ratio": steering_ratio,
+        }
+        record = item_record(
+            method=result.method,
+            accepted=True,
+            residual_rms=result.residual_rms_tyre_deg,
+            residual_max=result.residual_max_tyre_deg,
+            residual_unit="deg tyre",
+            samples_used=result.accepted,
+            rejected=rejected,
+            summary=lines[0],
+            raw_data=raw_data,
+        )
+        step_result = StepResult("pot_map", values, record)
+    return FitReport(
+        step="pot-map",
+        accepted=step_result is not None,
+        lines=tuple(lines),
+        reasons=verdict.reasons,
+        result=step_result,
+        draw=lambda plt: _draw_pot_map(plt, result),
+        figures={
+            "pot_centre_counts": result.pot_centre_counts,
+            "backlash_rad": result.backlash_rad,
+            "residual_rms_tyre_deg": result.residual_rms_tyre_deg,
+            "residual_max_tyre_deg": result.residual_max_tyre_deg,
+            "valid_counts": [result.pot_valid_min_counts, result.pot_valid_max_counts],
+        },
+    )
+
+
+def _draw_pot_map(plt: Any, result: PotMapResult) -> Any:
+    """Fig. 17: the rests (pot against encoder, by sweep direction) and the fitted map."""
+    figure, axes = plt.subplots(figsize=(7, 5))
+    zero = result.encoder_at_centre_rad
+    for direction, colour, label in ((1, "tab:blue", "turning left"), (-1, "tab:orange", "back")):
+        rests = [p for p in result.pauses if p.direction == direction]
+        axes.scatter(
+            [p.pot_counts for p in rests],
+            [p.encoder_rad - zero for p in rests],
+            c=colour,
+            marker="o",
+            label=label,
+        )
+    if result.pot_centre_counts is not None:
+        counts = np.linspace(result.pot_valid_min_counts, result.pot_valid_max_counts, 200)
+        wheel = wheel_rad_at(result.pot_to_wheel_coeffs, counts - result.pot_centre_counts)
+        axes.plot(counts, wheel, "k-", lw=1, label="map")
+    axes.set_xlabel("pot (counts)")
+    axes.set_ylabel("steering wheel from the encoder (rad)")
+    axes.set_title("pot map (Stanley et al., Fig. 17)")
+    axes.legend()
+    return figure
+
+
+STEP_CLASSES: dict[str, type[PotCentreStep] | type[PotMapStep]] = {
+    PotCentreStep.name: PotCentreStep,
+    PotMapStep.name: PotMapStep,
+}
