@@ -1,0 +1,107 @@
+"""Maneuvers driven on the simulated vehicle's own models, for the fits to recover.
+
+Each generator runs the same pure models the twins use (``appliance.sim.vehicle.step``,
+``drivers.actuators.steering_model.step_servo`` and ``PotMapping``) with a scripted
+driver or servo, and samples what the daemon would record, with the sensors' noise.
+The truth the fits must find is then known exactly: the pot mapping's parameters, the
+servo's backlash, the vehicle's throttle and brake response.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from appliance.sim.vehicle import VehicleCommand, VehicleParams, VehicleState, step
+from drivers.actuators.steering_model import PotMapping, ServoParams
+from drivers.pc104.messages import MotionPattern
+
+FloatArray = NDArray[np.float64]
+
+HUSKY = VehicleParams(
+    wheelbase_m=3.6,
+    track_width_m=2.4,
+    counter_steer_ratio_k=0.63,
+    characteristic_speed_mps=10.0,
+    max_steer_angle_rad=math.radians(32.0),
+    max_steer_rate_rad_per_s=math.radians(25.0),
+    brake_time_constant_s=0.3,
+)
+MAPPING = PotMapping()
+SERVO = ServoParams()
+COUNTS_PER_TYRE_DEG = MAPPING.gain_counts_per_rad * SERVO.steering_ratio * math.pi / 180.0
+
+
+@dataclass(frozen=True)
+class StraightDrive:
+    t_s: FloatArray
+    pot_counts: FloatArray
+    yaw_rate_rad_per_s: FloatArray
+    speed_mps: FloatArray
+    steer_rate_rad_per_s: FloatArray
+
+
+def straight_drive(
+    seed: int,
+    legs: int = 4,
+    leg_s: float = 25.0,
+    speed_mps: float = 3.0,
+    sample_hz: float = 20.0,
+    crowned_leg: int | None = None,
+    crown_tyre_deg: float = 0.6,
+) -> StraightDrive:
+    """Straight legs along lines 3 m apart, a lane change between them.
+
+    The driver steers back to the line from the lateral offset and the heading, with a
+    slow random wander (a person never holds the wheel still); the vehicle runs on
+    ``appliance.sim.vehicle.step`` (counter-steer, steering lag, sideslip). The pot reads
+    the true steering-wheel angle through ``MAPPING`` with its noise, the INS's yaw rate
+    and speed carry theirs. On ``crowned_leg`` the road's crown pulls the vehicle: the
+    driver holds ``crown_tyre_deg`` more against it to go straight, so the pot reads off
+    centre while the vehicle goes straight (the segment the fit must drop).
+    """
+    rng = np.random.default_rng(seed)
+    dt_s = 0.02
+    per_sample = round(1.0 / (sample_hz * dt_s))
+    state = VehicleState(speed_mps=speed_mps)
+    throttle_pct = 100.0 * HUSKY.drag_per_s * speed_mps / HUSKY.max_accel_mps2
+    wander_rad, previous_wheel = 0.0, 0.0
+    rows: list[tuple[float, float, float, float, float]] = []
+    steps = round(legs * leg_s / dt_s)
+    for i in range(steps):
+        leg = int(i * dt_s // leg_s)
+        crown = math.radians(crown_tyre_deg) if leg == crowned_leg else 0.0
+        wander_rad += -wander_rad * dt_s / 2.0 + rng.normal(0.0, 0.0012) * math.sqrt(dt_s)
+        line_y = 3.0 * leg
+        steer = -0.15 * (state.y_m - line_y) / 3.0 - 1.0 * state.yaw_rad + wander_rad
+        steer = max(-0.15, min(0.15, steer))
+        command = VehicleCommand(
+            MotionPattern.COUNTER_STEER,
+            front_steer_rad=steer,
+            throttle_pct=throttle_pct,
+            brake_pct=0.0,
+        )
+        before = state
+        state = step(state, command, dt_s, HUSKY)
+        if i % per_sample:
+            continue
+        yaw_rate = math.remainder(state.yaw_rad - before.yaw_rad, math.tau) / dt_s
+        # the crown turns the vehicle as much as the wheel held against it turns it back
+        wheel_rad = (state.front_steer_rad + crown) * SERVO.steering_ratio
+        rows.append(
+            (
+                state.t_s,
+                MAPPING.ideal_counts(wheel_rad) + rng.normal(0.0, MAPPING.noise_counts),
+                yaw_rate + rng.normal(0.0, 0.003),
+                state.speed_mps + rng.normal(0.0, 0.02),
+                (wheel_rad - previous_wheel) * sample_hz,
+            )
+        )
+        previous_wheel = wheel_rad
+    data = np.asarray(rows).T
+    data[1] = np.round(data[1])  # the ADC gives whole counts
+    return StraightDrive(data[0], data[1], data[2], data[3], data[4])
+
