@@ -16,7 +16,14 @@ import numpy as np
 from numpy.typing import NDArray
 
 from appliance.sim.vehicle import VehicleCommand, VehicleParams, VehicleState, step
-from drivers.actuators.steering_model import PotMapping, ServoParams
+from drivers.actuators.messages import SteeringMode
+from drivers.actuators.steering_model import (
+    PotMapping,
+    ServoParams,
+    ServoState,
+    ServoTarget,
+    step_servo,
+)
 from drivers.pc104.messages import MotionPattern
 
 FloatArray = NDArray[np.float64]
@@ -105,3 +112,68 @@ def straight_drive(
     data[1] = np.round(data[1])  # the ADC gives whole counts
     return StraightDrive(data[0], data[1], data[2], data[3], data[4])
 
+
+@dataclass(frozen=True)
+class PotSweep:
+    t_s: FloatArray
+    encoder_wheel_rad: FloatArray
+    pot_counts: FloatArray
+    commanded_wheel_rad: FloatArray
+
+
+def pot_sweep(
+    seed: int,
+    mapping: PotMapping = MAPPING,
+    servo: ServoParams = SERVO,
+    reach_rad: float = 11.0,
+    step_rad: float = math.pi,
+    pause_s: float = 2.0,
+    encoder_zero_rad: float = 0.0,
+    sample_hz: float = 50.0,
+    glitches: int = 0,
+) -> PotSweep:
+    """Fig. 17's maneuver on the servo model: from full right to full left and back in
+    half turns (``step_rad``), holding each command ``pause_s``; commanded ``reach_rad``
+    is past the lock, so the ends are the servo pressing into the locks.
+
+    The encoder reads the servo's shaft (``motor_rad``, half the backlash ahead of the
+    wheel) from ``encoder_zero_rad``, in 0.001 rad ticks; the pot reads the wheel through
+    ``mapping`` with its noise, in whole counts. ``glitches`` pot samples are replaced by
+    a rail reading or a spike of a few hundred counts.
+    """
+    rng = np.random.default_rng(seed)
+    dt_s = 0.005
+    per_sample = round(1.0 / (sample_hz * dt_s))
+    up = np.arange(-reach_rad, reach_rad + 1e-9, step_rad)
+    commands = np.concatenate([up, up[-2::-1]])
+    state = ServoState()
+    rows: list[tuple[float, float, float, float]] = []
+    t_s = 0.0
+    steps_per_hold = round(pause_s / dt_s)
+    for command in commands:
+        target = ServoTarget(SteeringMode.POSITION, motor_setpoint_rad=float(command))
+        for i in range(steps_per_hold):
+            state = step_servo(state, target, dt_s, servo)
+            t_s += dt_s
+            if i % per_sample == 0:
+                counts = mapping.ideal_counts(state.wheel_rad) + rng.normal(
+                    0.0, mapping.noise_counts
+                )
+                encoder = round((state.motor_rad - encoder_zero_rad) * 1000.0) / 1000.0
+                rows.append((t_s, encoder, counts, float(command) - encoder_zero_rad))
+    data = np.asarray(rows).T
+    data[2] = np.clip(np.round(data[2]), 0, 4095)
+    for index in rng.choice(data.shape[1], size=glitches, replace=False):
+        data[2, index] = rng.choice([0.0, 4095.0, data[2, index] + rng.choice([-300.0, 300.0])])
+    return PotSweep(data[0], data[1], data[2], data[3])
+
+
+def true_wheel_rad(counts: FloatArray, mapping: PotMapping = MAPPING) -> FloatArray:
+    """The wheel angle a reading means, inverting the mapping's cubic by Newton's method."""
+    wheel = (counts - mapping.centre_counts) / mapping.gain_counts_per_rad
+    for _ in range(30):
+        error = mapping.centre_counts + mapping.gain_counts_per_rad * wheel
+        error = error + mapping.cubic_counts_per_rad3 * wheel**3 - counts
+        slope = mapping.gain_counts_per_rad + 3.0 * mapping.cubic_counts_per_rad3 * wheel**2
+        wheel = wheel - error / slope
+    return np.asarray(wheel, dtype=np.float64)
