@@ -257,11 +257,30 @@ def _result(
         )
     if fit is None:
         return PotMapResult(
-            None, "none", (), (), 0, 0, math.nan, math.nan, False, False, math.nan, math.nan,
-            math.nan, False, math.nan, math.nan, steering_ratio, pauses, samples,
-            int(np.count_nonzero(kept)), rejected, POT_MAP_METHOD,
-            Verdict.from_reasons([*reasons, "fewer than 4 usable pauses: nothing to fit"]),
-        )  # fmt: skip
+            pot_centre_counts=None,
+            centre_from="none",
+            pot_to_wheel_coeffs=(),
+            powers=(),
+            pot_valid_min_counts=0,
+            pot_valid_max_counts=0,
+            usable_min_counts=math.nan,
+            usable_max_counts=math.nan,
+            lock_at_min=False,
+            lock_at_max=False,
+            backlash_rad=math.nan,
+            backlash_std_error_rad=math.nan,
+            encoder_at_centre_rad=math.nan,
+            monotonic=False,
+            residual_rms_rad=math.nan,
+            residual_max_rad=math.nan,
+            steering_ratio=steering_ratio,
+            pauses=pauses,
+            samples=samples,
+            accepted=int(np.count_nonzero(kept)),
+            rejected=rejected,
+            method=POT_MAP_METHOD,
+            verdict=Verdict.from_reasons([*reasons, "fewer than 4 usable pauses: nothing to fit"]),
+        )
     residual_rms = float(np.sqrt(np.mean(fit.residuals_rad**2)))
     residual_max = float(np.max(np.abs(fit.residuals_rad)))
     backlash = 2.0 * fit.half_backlash_rad
