@@ -10,6 +10,7 @@ servo's backlash, the vehicle's throttle and brake response.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -177,3 +178,75 @@ def true_wheel_rad(counts: FloatArray, mapping: PotMapping = MAPPING) -> FloatAr
         slope = mapping.gain_counts_per_rad + 3.0 * mapping.cubic_counts_per_rad3 * wheel**2
         wheel = wheel - error / slope
     return np.asarray(wheel, dtype=np.float64)
+
+
+PEDAL_VEHICLE = VehicleParams(**{**HUSKY.__dict__, "max_speed_mps": 10.0})
+
+
+@dataclass(frozen=True)
+class PedalSweep:
+    t_s: FloatArray
+    speed_mps: FloatArray
+    throttle_pct: FloatArray
+    brake_pct: FloatArray
+
+
+def true_accel_mps2(
+    throttle_pct: float, brake_pct: float, speed_mps: float, vehicle: VehicleParams = PEDAL_VEHICLE
+) -> float:
+    """The simulated vehicle's acceleration under steady pedals, moving
+    (``appliance.sim.vehicle.step``): throttle × max accel less drag, less brake × max
+    decel. The sim puts the drag inside the traction's lag, so while the speed changes
+    the drag it applies is the one of ``tau`` seconds ago: solving
+    ``a = target(v) + drag × tau × a`` gives the steady map over (1 - drag × tau),
+    2 % more than the map itself."""
+    drive = throttle_pct / 100.0 * vehicle.max_accel_mps2 - vehicle.drag_per_s * speed_mps
+    steady = drive - brake_pct / 100.0 * vehicle.max_decel_mps2
+    return steady / (1.0 - vehicle.drag_per_s * vehicle.traction_time_constant_s)
+
+
+def pedal_sweep(
+    seed: int,
+    levels: tuple[float, ...] = tuple(float(x) for x in range(10, 101, 10)),
+    sample_hz: float = 20.0,
+    speed_noise_mps: float = 0.03,
+    spikes: int = 0,
+    vehicle: VehicleParams = PEDAL_VEHICLE,
+) -> PedalSweep:
+    """Throttle steps from standstill (each held until 6 m/s or 20 s, then a 6 s coast
+    for the 0 % cells and a stop), then brake steps from 9 m/s (reached at 60 % throttle,
+    then a 3 s coast, then the brake held to a stop: a hard brake needs the speed, its
+    cells fill only below the speed left once it has settled), on
+    ``appliance.sim.vehicle.step`` with its traction and brake lags. The speed is the
+    GNSS/INS's: noise, and ``spikes`` jumps of 0.5 m/s."""
+    rng = np.random.default_rng(seed)
+    dt_s = 0.01
+    per_sample = round(1.0 / (sample_hz * dt_s))
+    state = VehicleState()
+    rows: list[tuple[float, float, float, float]] = []
+    step_count = 0
+
+    def hold(throttle: float, brake: float, max_s: float, done: Callable[[float], bool]) -> None:
+        nonlocal state, step_count
+        command = VehicleCommand(MotionPattern.STRAIGHT, throttle_pct=throttle, brake_pct=brake)
+        for _ in range(round(max_s / dt_s)):
+            state = step(state, command, dt_s, vehicle)
+            step_count += 1
+            if step_count % per_sample == 0:
+                rows.append((state.t_s, state.speed_mps, throttle, brake))
+            if done(state.speed_mps):
+                return
+
+    never: Callable[[float], bool] = lambda _: False  # noqa: E731
+    for level in levels:
+        hold(level, 0.0, 20.0, lambda v: v >= 6.0)
+        hold(0.0, 0.0, 6.0, never)
+        hold(0.0, 60.0, 10.0, lambda v: v <= 0.0)
+    for level in levels:
+        hold(60.0, 0.0, 30.0, lambda v: v >= 9.0)
+        hold(0.0, 0.0, 3.0, never)
+        hold(0.0, level, 30.0, lambda v: v <= 0.0)
+    data = np.asarray(rows).T
+    data[1] += rng.normal(0.0, speed_noise_mps, data.shape[1])
+    data[1, rng.choice(data.shape[1], size=spikes, replace=False)] += 0.5
+    return PedalSweep(data[0], data[1], data[2], data[3])
