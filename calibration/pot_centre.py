@@ -23,7 +23,7 @@ The method (:func:`fit_pot_centre`):
 3. Each segment gives one estimate of the centre: its mean pot reading, less what its
    net turning explains. "Straight" by a yaw-rate gate still lets a segment curve gently
    (a vehicle settling onto the line after a turn holds a small angle for many seconds:
-   0.004 rad/s at 3 m/s is 0.15° of tyre angle, more than the figure). The segments'
+   0.004 rad/s at 3 m/s is 0.17° of the Husky's tyre angle, more than the figure). The segments'
    samples give the pot's slope against curvature (yaw rate / speed, smoothed over
    ``curvature_window_s`` so the INS's rate noise does not flatten it), one slope pooled
    over every segment's deviations from its own means; each segment's estimate is its
@@ -132,17 +132,17 @@ class PotCentreResult:
     verdict: Verdict
     params: PotCentreParams = field(repr=False)
 
+    def tyre_deg(self, counts: float) -> float:
+        """A spread or residual in counts as tyre degrees (e.g. a segment's ``std_counts``)."""
+        return counts / abs(self.counts_per_tyre_deg)
+
     @property
     def spread_tyre_deg(self) -> float:
-        return self.spread_counts / abs(self.counts_per_tyre_deg)
+        return self.tyre_deg(self.spread_counts)
 
     @property
     def within_segment_std_tyre_deg(self) -> float:
-        return self.within_segment_std_counts / abs(self.counts_per_tyre_deg)
-
-    @property
-    def residual_rms_tyre_deg(self) -> float:
-        return self.residual_rms_counts / abs(self.counts_per_tyre_deg)
+        return self.tyre_deg(self.within_segment_std_counts)
 
     @property
     def standard_error_tyre_deg(self) -> float:
@@ -210,7 +210,7 @@ def fit_pot_centre(
         reasons.append(f"{distance:.0f} m driven straight, at least {p.min_total_m:.0f} m needed")
     if spread / slope > p.max_spread_tyre_deg:
         reasons.append(
-            f"the segments disagree: their means spread {spread / slope:.3f}° of tyre angle, "
+            f"the segments disagree: their estimates spread {spread / slope:.3f}° of tyre angle, "
             f"more than {p.max_spread_tyre_deg}° (a crowned road, or not driven straight?)"
         )
     return PotCentreResult(
