@@ -5,17 +5,35 @@ because the centre reading means straight ahead by definition. Evaluating it, it
 (the calibration file's monotonicity check) and fitting it to measured points are plain
 numpy, shared by the file's validation, the daemon's conversions and every maneuver that
 measures a map (the pot-map step, and the simulated vehicle's truth fitted the same way).
+
+The pot-map step (Stanley et al., Fig. 17; :func:`fit_pot_map`, or
+:class:`PotMapAccumulator` while the sweep runs): the vehicle stands and the servo turns
+the wheel from full right to full left and back in half turns, pausing after each. The
+pauses, their approach directions, the locks and what is refused on the way are
+:mod:`calibration.pot_map_pauses`; the joint fit of both sweep directions, which gives
+the backlash and the map through the mid-branch points, is
+:mod:`calibration.pot_map_branches`. This module judges the result and turns it into the
+calibration file's values: the polynomial, the centre (the pot-centre step's, given as an
+argument, else the reading at encoder zero) and the valid range, the outermost pauses
+used plus ``valid_margin_counts``. The figure to reach is the map within 0.2° of tyre
+angle over that range; a pause further than half of that from the map
+(``max_residual_tyre_deg``) refuses the fit, since the map between pauses can only be
+worse than at them.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
-from typing import Any
+from dataclasses import dataclass, field, replace
+from typing import Any, Final
 
 import numpy as np
 import numpy.typing as npt
 
-FloatArray = npt.NDArray[np.float64]
+from calibration.fit_checks import BoolArray, FloatArray, Verdict, sample_columns, tally, time_order
+from calibration.pot_map_branches import BranchFit, BranchParams, fit_branches
+from calibration.pot_map_pauses import Pause, PauseParams, find_pauses, not_following
 
 # Up to degree 9: the inverse of a pot map with a cubic term near its lock needs it to
 # reach a few mrad of steering-wheel angle (degree 5 cannot do better than ~0.02 rad).
@@ -50,3 +68,276 @@ def fit_pot_to_wheel_coeffs(
     for power, coeff in zip(powers, scaled, strict=True):
         coeffs[power - 1] = float(coeff) / scale**power
     return tuple(coeffs)
+
+
+# --- The pot-map maneuver (Fig. 17): from the sweep's pauses to the file's values. ---
+
+POT_MAP_METHOD: Final = (
+    "pauses of a stationary half-turn sweep both ways; joint least squares of encoder "
+    "angle on an odd polynomial of pot counts plus half the backlash times the approach "
+    "direction; one round of outlier pauses; degree lowered until monotonic "
+    "(calibration.pot_map)"
+)
+POT_MAP_MIN_SAMPLES: Final = 10
+
+
+@dataclass(frozen=True)
+class PotMapParams:
+    pauses: PauseParams = field(default_factory=PauseParams)
+    branches: BranchParams = field(default_factory=BranchParams)
+    min_pauses_per_direction: int = 4
+    # More free play than this is a loose coupling to fix, not a number to calibrate.
+    max_backlash_rad: float = 0.15
+    max_residual_tyre_deg: float = 0.1  # half the map's 0.2° figure, for what lies between
+    min_travel_rad: float = 0.5  # each side of centre: the calibration file's own minimum
+
+
+@dataclass(frozen=True)
+class PotMapResult:
+    pot_centre_counts: float | None  # None: no encoder zero inside the measured range
+    centre_from: str  # "pot-centre step" or "encoder zero"
+    pot_to_wheel_coeffs: tuple[float, ...]  # the file's: coeff[i] for d**(i+1)
+    powers: tuple[int, ...]  # the odd powers fitted (fewer than asked if needed)
+    pot_valid_min_counts: int
+    pot_valid_max_counts: int
+    usable_min_counts: float  # the outermost pauses used
+    usable_max_counts: float
+    lock_at_min: bool  # the range ends at a lock (else: where the sweep turned back)
+    lock_at_max: bool
+    backlash_rad: float  # steering-wheel rad between the two sweep directions
+    backlash_std_error_rad: float
+    encoder_at_centre_rad: float  # the encoder's reading with the wheels straight
+    monotonic: bool
+    residual_rms_rad: float  # steering-wheel rad, backlash-corrected pauses about the map
+    residual_max_rad: float
+    steering_ratio: float
+    pauses: tuple[Pause, ...]
+    samples: int
+    accepted: int
+    rejected: dict[str, int]
+    method: str
+    verdict: Verdict
+
+    @property
+    def residual_rms_tyre_deg(self) -> float:
+        return math.degrees(self.residual_rms_rad / self.steering_ratio)
+
+    @property
+    def residual_max_tyre_deg(self) -> float:
+        return math.degrees(self.residual_max_rad / self.steering_ratio)
+
+
+@dataclass(frozen=True)
+class PotMapCoverage:
+    pauses_up: int
+    pauses_down: int
+    encoder_min_rad: float | None
+    encoder_max_rad: float | None
+    locks_seen: int  # pauses where the encoder stopped short of its command
+
+
+def fit_pot_map(
+    t_s: npt.ArrayLike,
+    encoder_wheel_rad: npt.ArrayLike,
+    pot_counts: npt.ArrayLike,
+    commanded_wheel_rad: npt.ArrayLike,
+    steering_ratio: float,
+    pot_centre_counts: float | None = None,
+    params: PotMapParams | None = None,
+) -> PotMapResult:
+    """The pot map from a stationary sweep; ValueError on malformed input.
+
+    ``pot_centre_counts`` is the pot-centre step's result; without it the centre is the
+    reading where the encoder reads zero (an encoder zeroed with the wheels straight).
+    ``steering_ratio`` only turns wheel angles into the tyre degrees of the thresholds.
+    """
+    p = params or PotMapParams()
+    if not (math.isfinite(steering_ratio) and steering_ratio > 0.0):
+        raise ValueError(f"steering_ratio must be positive and finite: {steering_ratio}")
+    if pot_centre_counts is not None and not math.isfinite(pot_centre_counts):
+        raise ValueError(f"pot_centre_counts must be finite: {pot_centre_counts}")
+    cols = time_order(
+        sample_columns(
+            {
+                "t_s": t_s,
+                "encoder_wheel_rad": encoder_wheel_rad,
+                "pot_counts": pot_counts,
+                "commanded_wheel_rad": commanded_wheel_rad,
+            },
+            POT_MAP_MIN_SAMPLES,
+        )
+    )
+    found = find_pauses(
+        cols["t_s"],
+        cols["encoder_wheel_rad"],
+        cols["pot_counts"],
+        cols["commanded_wheel_rad"],
+        p.pauses,
+    )
+    past = not_following(found.pauses, p.pauses.pot_follow_fraction)
+    pauses = [replace(q, used=not bad) for q, bad in zip(found.pauses, past, strict=True)]
+    fit = fit_branches(pauses, pot_centre_counts, p.branches)
+    outliers = np.zeros(len(pauses), dtype=np.bool_)
+    if fit is not None:
+        outliers = fit.outliers
+        pauses = [
+            replace(q, used=q.used and not out) for q, out in zip(pauses, outliers, strict=True)
+        ]
+    n = cols["t_s"].size
+    past_samples, outlier_samples = np.zeros(n, np.bool_), np.zeros(n, np.bool_)
+    for (a, b), bad, out in zip(found.spans, past, outliers, strict=True):
+        past_samples[a:b], outlier_samples[a:b] = bad, out and not bad
+    kept, rejected = tally(
+        n,
+        [*found.refused.items(), ("past_travel", past_samples), ("outlier_pause", outlier_samples)],
+    )
+    return _result(fit, tuple(pauses), pot_centre_counts, steering_ratio, n, kept, rejected, p)
+
+
+class PotMapAccumulator:
+    """Samples as they arrive; ``coverage()`` during the sweep, ``fit()`` at the end."""
+
+    def __init__(self, params: PotMapParams | None = None) -> None:
+        self.params = params or PotMapParams()
+        self._rows: list[tuple[float, float, float, float]] = []
+
+    def reset(self) -> None:
+        self._rows.clear()
+
+    def update(
+        self, t_s: float, encoder_wheel_rad: float, pot_counts: float, commanded_wheel_rad: float
+    ) -> None:
+        row = (float(t_s), float(encoder_wheel_rad), float(pot_counts), float(commanded_wheel_rad))
+        if not all(math.isfinite(v) for v in row):
+            raise ValueError(f"non-finite sample {row}: drop it upstream, do not send NaN")
+        self._rows.append(row)
+
+    def coverage(self) -> PotMapCoverage:
+        if not self._rows:
+            return PotMapCoverage(0, 0, None, None, 0)
+        t, encoder, pot, command = np.asarray(self._rows).T
+        order = np.argsort(t, kind="stable")
+        found = find_pauses(
+            t[order], encoder[order], pot[order], command[order], self.params.pauses
+        ).pauses
+        at = [q.encoder_rad for q in found]
+        return PotMapCoverage(
+            pauses_up=sum(1 for q in found if q.direction > 0),
+            pauses_down=sum(1 for q in found if q.direction < 0),
+            encoder_min_rad=min(at) if at else None,
+            encoder_max_rad=max(at) if at else None,
+            locks_seen=sum(1 for q in found if q.at_lock),
+        )
+
+    def fit(self, steering_ratio: float, pot_centre_counts: float | None = None) -> PotMapResult:
+        data = np.asarray(self._rows).T if self._rows else np.zeros((4, 0))
+        return fit_pot_map(
+            data[0], data[1], data[2], data[3], steering_ratio, pot_centre_counts, self.params
+        )
+
+
+def _result(
+    fit: BranchFit | None,
+    pauses: tuple[Pause, ...],
+    given_centre: float | None,
+    steering_ratio: float,
+    samples: int,
+    kept: BoolArray,
+    rejected: dict[str, int],
+    p: PotMapParams,
+) -> PotMapResult:
+    used = [q for q in pauses if q.used]
+    up = sum(1 for q in used if q.direction > 0)
+    down = len(used) - up
+    reasons: list[str] = []
+    if min(up, down) < p.min_pauses_per_direction:
+        reasons.append(
+            f"{up} pause(s) sweeping up and {down} down, at least {p.min_pauses_per_direction} "
+            "each way needed (the backlash is the gap between the two)"
+        )
+    if fit is None:
+        return PotMapResult(
+            pot_centre_counts=None,
+            centre_from="none",
+            pot_to_wheel_coeffs=(),
+            powers=(),
+            pot_valid_min_counts=0,
+            pot_valid_max_counts=0,
+            usable_min_counts=math.nan,
+            usable_max_counts=math.nan,
+            lock_at_min=False,
+            lock_at_max=False,
+            backlash_rad=math.nan,
+            backlash_std_error_rad=math.nan,
+            encoder_at_centre_rad=math.nan,
+            monotonic=False,
+            residual_rms_rad=math.nan,
+            residual_max_rad=math.nan,
+            steering_ratio=steering_ratio,
+            pauses=pauses,
+            samples=samples,
+            accepted=int(np.count_nonzero(kept)),
+            rejected=rejected,
+            method=POT_MAP_METHOD,
+            verdict=Verdict.from_reasons([*reasons, "fewer than 4 usable pauses: nothing to fit"]),
+        )
+    residual_rms = float(np.sqrt(np.mean(fit.residuals_rad**2)))
+    residual_max = float(np.max(np.abs(fit.residuals_rad)))
+    backlash = 2.0 * fit.half_backlash_rad
+    low, high = fit.valid_counts
+    centre = fit.centre_counts
+    if centre is None:
+        reasons.append(
+            "the encoder never reads zero inside the swept range: give the centre from the "
+            "pot-centre step"
+        )
+    elif not low < centre < high:
+        reasons.append(f"the centre {centre:.1f} lies outside the valid range {low}..{high}")
+    else:
+        for name, end in (("min", low), ("max", high)):
+            travel = abs(float(wheel_rad_at(fit.coeffs, end - centre)))
+            if travel < p.min_travel_rad:
+                reasons.append(
+                    f"only {travel:.2f} rad of steering wheel between the centre and the "
+                    f"valid {name}, at least {p.min_travel_rad} needed: sweep further"
+                )
+    if not fit.monotonic:
+        reasons.append("no odd polynomial up to the asked degree is monotonic over the range")
+    if abs(backlash) > p.max_backlash_rad:
+        reasons.append(
+            f"{backlash:.3f} rad of backlash between the sweep directions, more than "
+            f"{p.max_backlash_rad}: tighten the coupling"
+        )
+    residual_max_deg = math.degrees(residual_max / steering_ratio)
+    if residual_max_deg > p.max_residual_tyre_deg:
+        reasons.append(
+            f"a pause lies {residual_max_deg:.3f}° of tyre angle from the map, more than "
+            f"{p.max_residual_tyre_deg}°"
+        )
+    pots = [q.pot_counts for q in used]
+    ends = [min(used, key=lambda q: q.pot_counts), max(used, key=lambda q: q.pot_counts)]
+    return PotMapResult(
+        pot_centre_counts=centre,
+        centre_from="pot-centre step" if given_centre is not None else "encoder zero",
+        pot_to_wheel_coeffs=fit.coeffs,
+        powers=fit.powers,
+        pot_valid_min_counts=low,
+        pot_valid_max_counts=high,
+        usable_min_counts=min(pots),
+        usable_max_counts=max(pots),
+        lock_at_min=ends[0].at_lock,
+        lock_at_max=ends[1].at_lock,
+        backlash_rad=backlash,
+        backlash_std_error_rad=2.0 * fit.half_backlash_se_rad,
+        encoder_at_centre_rad=fit.offset_rad,
+        monotonic=fit.monotonic,
+        residual_rms_rad=residual_rms,
+        residual_max_rad=residual_max,
+        steering_ratio=steering_ratio,
+        pauses=pauses,
+        samples=samples,
+        accepted=int(np.count_nonzero(kept)),
+        rejected=rejected,
+        method=POT_MAP_METHOD,
+        verdict=Verdict.from_reasons(reasons),
+    )
