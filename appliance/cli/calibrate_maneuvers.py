@@ -29,8 +29,11 @@ from appliance import __version__
 from appliance.cli.common import CONFIG_OPTION, EXIT_CONFIG_ERROR, draw_png, load_or_exit
 from appliance.config import VehicleConfig
 from appliance.config.calibration import CalibrationFile
-from appliance.config.calibration_file import BUILTIN_SIMULATED, CalibrationError
-from appliance.config.calibration_file import read_vehicle_calibration
+from appliance.config.calibration_file import (
+    BUILTIN_SIMULATED,
+    CalibrationError,
+    read_vehicle_calibration,
+)
 from appliance.control_client import ControlClient
 from appliance.control_protocol import ControlSocketError
 from appliance.maneuvers.merge import MergeError, draft_values, merge_result
@@ -164,8 +167,7 @@ def _run_step(
     click.echo(f"{step_name}: {outcome.reason} ({outcome.samples} samples, {outcome.missed} lost)")
     if not outcome.complete:
         _fail(
-            f"the calibration is untouched; resume with: dbw calibrate {step_name} "
-            f"--resume {path}",
+            f"the calibration is untouched; resume with: dbw calibrate {step_name} --resume {path}",
             EXIT_NOT_ACCEPTED,
         )
     _fit_and_merge(step_name, config, path, target, png_path, no_merge, extra)
@@ -190,8 +192,16 @@ def _fit_and_merge(
     step = STEP_CLASSES[data.step](_context(config, target, extra))
     report: FitReport = step.fit(data.samples, raw_data=str(samples))
     if as_json:
-        click.echo(json.dumps({"step": report.step, "accepted": report.accepted,
-                               "reasons": list(report.reasons), **report.figures}))
+        click.echo(
+            json.dumps(
+                {
+                    "step": report.step,
+                    "accepted": report.accepted,
+                    "reasons": list(report.reasons),
+                    **report.figures,
+                }
+            )
+        )
     else:
         for line in report.lines:
             click.echo(line)

@@ -22,7 +22,7 @@ import contextlib
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
-from typing import Any, Protocol, TextIO
+from typing import Any, ClassVar, Protocol, TextIO
 
 from appliance.control_client import ControlClient
 from appliance.control_protocol import ControlSocketError
@@ -46,7 +46,7 @@ class Progress:
 class ManeuverStep(Protocol):
     """One maneuver's rules; the samples are the tap's dictionaries."""
 
-    name: str
+    name: ClassVar[str]
     instructions: tuple[str, ...]
     moves_vehicle: bool
     needed_inputs: tuple[str, ...]  # stale in a sample: the run is aborted

@@ -26,11 +26,14 @@ from appliance.maneuvers.merge import StepResult
 from appliance.maneuvers.report import FitReport, item_record
 from appliance.maneuvers.runner import Progress
 from calibration.pot_centre import PotCentreAccumulator, PotCentreResult
-from calibration.pot_map import PotMapAccumulator, PotMapResult, wheel_rad_at
+from calibration.pot_map import PotMapAccumulator, PotMapCoverage, PotMapResult, wheel_rad_at
 
 BAR_WIDTH = 20
 STILL_MPS = 0.05  # a stationary step: faster than this, the vehicle is moving
 MAX_FIX_AGE_S = 0.5
+STILL_WHEEL_RAD = 0.01  # the wheel resting: the encoder moves less than this
+LOCK_TOLERANCE_RAD = 0.3  # back at the lock the sweep started from
+FINAL_REST_S = 1.0
 
 
 @dataclass(frozen=True)
@@ -41,8 +44,12 @@ class StepContext:
 
 
 def bar(fraction: float) -> str:
-    filled = int(round(max(0.0, min(1.0, fraction)) * BAR_WIDTH))
+    filled = round(max(0.0, min(1.0, fraction)) * BAR_WIDTH)
     return "#" * filled + "." * (BAR_WIDTH - filled)
+
+
+def verdict_text(accepted: bool, reasons: Sequence[str]) -> str:
+    return "ACCEPTED" if accepted else "REFUSED: " + "; ".join(reasons)
 
 
 def _number(sample: Mapping[str, Any], key: str) -> float | None:
@@ -118,8 +125,8 @@ class PotCentreStep(HandStep):
             help="The pot's slope, where no calibration gives it (first installation).",
         ),
     )
-    needed_inputs = ("board.steering", "steering.pot")
-    instructions = (
+    needed_inputs: tuple[str, ...] = ("board.steering", "steering.pot")
+    instructions: tuple[str, ...] = (
         "pot-center: drive straight along a visual reference (a kerb, a painted line),",
         "  at a steady speed above 1 m/s, for at least three stretches of 10 m or more",
         "  (100 m in all). Turn around between stretches as you like: turns are left out.",
@@ -196,7 +203,7 @@ def pot_centre_report(result: PotCentreResult, taken: int, raw_data: str | None)
     rejected = {**result.rejected, **({"no reading": missing} if missing else {})}
     centre = result.centre_counts
     lines = [
-        f"pot centre: {'%.1f counts' % centre if centre is not None else 'none found'} "
+        f"pot centre: {'none found' if centre is None else f'{centre:.1f} counts'} "
         f"from {result.segments_used} straight stretch(es), {result.distance_m:.0f} m",
         f"  spread between stretches {result.spread_tyre_deg:.3f} deg tyre "
         f"(std error {result.standard_error_tyre_deg:.3f} deg), within stretches "
@@ -204,7 +211,8 @@ def pot_centre_report(result: PotCentreResult, taken: int, raw_data: str | None)
         f"  samples {taken}: used {result.accepted}, rejected "
         + (", ".join(f"{k} {v}" for k, v in rejected.items() if v) or "none"),
         f"  method: {result.method}",
-        "  verdict: " + ("ACCEPTED" if verdict.accepted else "REFUSED: " + "; ".join(verdict.reasons)),
+        "  verdict: "
+        + ("ACCEPTED" if verdict.accepted else "REFUSED: " + "; ".join(verdict.reasons)),
     ]
     step_result = None
     if verdict.accepted and centre is not None:
@@ -269,7 +277,7 @@ class PotMapStep(HandStep):
             help="Steering-wheel rad per tyre rad, where no calibration gives it.",
         ),
     )
-    instructions = (
+    instructions: tuple[str, ...] = (
         "pot-map: with the vehicle standing still, engine running, servo released:",
         "  turn the steering wheel to full RIGHT lock and let it rest 2 s;",
         "  then turn it LEFT half a turn at a time, resting 2 s after each, to full left;",
@@ -281,6 +289,9 @@ class PotMapStep(HandStep):
         self._coverage_rows = -1
         self._coverage = self.accumulator.coverage()
         self._rows = 0
+        self._encoder_rad: float | None = None
+        self._still_since_s = math.inf
+        self._last_s = -math.inf
 
     def take(self, sample: Mapping[str, Any]) -> str | None:
         speed = _speed(sample)
@@ -295,9 +306,12 @@ class PotMapStep(HandStep):
         command = _number(sample, "steer_setpoint_rad")
         self.accumulator.update(t_s, encoder, pot, encoder if command is None else command)
         self._rows += 1
+        if self._encoder_rad is None or abs(encoder - self._encoder_rad) > STILL_WHEEL_RAD:
+            self._encoder_rad, self._still_since_s = encoder, t_s
+        self._last_s = t_s
         return None
 
-    def coverage(self) -> Any:
+    def coverage(self) -> PotMapCoverage:
         if self._coverage_rows != self._rows:
             self._coverage = self.accumulator.coverage()
             self._coverage_rows = self._rows
@@ -319,10 +333,17 @@ class PotMapStep(HandStep):
         )
 
     def complete(self) -> bool:
-        """Back at the start: as many rests on the way back as on the way out."""
+        """Back at full right and resting there, with as many rests on the way back as
+        on the way out (the rest at full right before the sweep counts as one back)."""
         c = self.coverage()
         need = self.accumulator.params.min_pauses_per_direction
-        return c.pauses_up >= need and c.pauses_down >= c.pauses_up
+        at_right_lock = (
+            c.encoder_min_rad is not None
+            and self._encoder_rad is not None
+            and abs(self._encoder_rad - c.encoder_min_rad) < LOCK_TOLERANCE_RAD
+            and self._last_s - self._still_since_s >= FINAL_REST_S
+        )
+        return c.pauses_up >= need and c.pauses_down >= c.pauses_up and at_right_lock
 
     def fit(self, samples: Sequence[Mapping[str, Any]], raw_data: str | None) -> FitReport:
         self.reset()
@@ -343,7 +364,8 @@ def pot_map_report(
     rejected = {**result.rejected, **({"no reading": missing} if missing else {})}
     lines = [
         f"pot map: {sum(1 for p in result.pauses if p.used)} rests used of "
-        f"{len(result.pauses)}, counts {result.usable_min_counts:.0f}..{result.usable_max_counts:.0f}"
+        f"{len(result.pauses)}, counts "
+        f"{result.usable_min_counts:.0f}..{result.usable_max_counts:.0f}"
         f" (valid {result.pot_valid_min_counts}..{result.pot_valid_max_counts})",
         f"  centre {result.pot_centre_counts} ({result.centre_from}), backlash "
         f"{result.backlash_rad:.4f} rad of wheel (+-{result.backlash_std_error_rad:.4f}), "
@@ -353,7 +375,8 @@ def pot_map_report(
         f"  samples {taken}: used {result.accepted}, rejected "
         + (", ".join(f"{k} {v}" for k, v in rejected.items() if v) or "none"),
         f"  method: {result.method}",
-        "  verdict: " + ("ACCEPTED" if verdict.accepted else "REFUSED: " + "; ".join(verdict.reasons)),
+        "  verdict: "
+        + ("ACCEPTED" if verdict.accepted else "REFUSED: " + "; ".join(verdict.reasons)),
     ]
     step_result = None
     if verdict.accepted and result.pot_centre_counts is not None:

@@ -59,24 +59,34 @@ def pot_map_schedule(
     return poses
 
 
-def straight_drive_schedule(
-    duration_s: float,
+def straight_legs_schedule(
+    legs: int = 3,
     *,
-    throttle_pct: float = 30.0,
+    leg_s: float = 14.0,
+    turn_s: float = 5.0,
+    turn_wheel_rad: float = 2.0,
+    throttle_pct: float = 25.0,
     correction_rad: float = 0.05,
     correction_period_s: float = 7.0,
     step_s: float = 0.1,
 ) -> list[Pose]:
-    """Stanley et al.'s first step: along a visual reference, the wheel near straight
-    with slow small corrections (a driver's, a few hundredths of a radian), then off
-    the throttle."""
+    """Stanley et al.'s first step: ``legs`` stretches along a visual reference, the
+    wheel near straight with a driver's slow small corrections (a few hundredths of a
+    radian), a turn between stretches; then off the throttle, hands off."""
     poses = []
-    for i in range(int(duration_s / step_s)):
-        t_s = i * step_s
-        wheel = correction_rad * math.sin(2.0 * math.pi * t_s / correction_period_s)
-        poses.append(Pose(t_s, wheel, throttle_pct))
-    poses.append(Pose(duration_s, 0.0, 0.0))
-    poses.append(Pose(duration_s + 1.0, None, 0.0))
+    t_s = 0.0
+    for leg in range(legs):
+        if leg:
+            for i in range(int(turn_s / step_s)):
+                poses.append(Pose(t_s + i * step_s, turn_wheel_rad, throttle_pct))
+            t_s += turn_s
+        for i in range(int(leg_s / step_s)):
+            now = t_s + i * step_s
+            wheel = correction_rad * math.sin(2.0 * math.pi * now / correction_period_s)
+            poses.append(Pose(now, wheel, throttle_pct))
+        t_s += leg_s
+    poses.append(Pose(t_s, 0.0, 0.0))
+    poses.append(Pose(t_s + 1.0, None, 0.0))
     return poses
 
 
