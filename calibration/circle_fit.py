@@ -21,7 +21,7 @@ scaled by their spread, so that metres of UTM-sized coordinates do not swamp the
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import scipy.linalg
@@ -46,7 +46,9 @@ class CircleFit:
     d_m: float
     residuals_m: FloatArray  # signed distance of each point from the curve
     rms_m: float
-    curvature_sigma_per_m: float  # from the fit's Jacobian and its residual scatter
+    # Of (A [1/m], D [m], θ [rad]), from the Jacobian and the residual scatter; inf for
+    # three points, which leave no scatter to judge by.
+    covariance: FloatArray
     converged: bool
     method: str
 
@@ -55,6 +57,10 @@ class CircleFit:
         """``2 A``: its sign follows the orientation of ``(B, C)``, not the direction of
         travel (:func:`signed_curvature_per_m` gives the sign a vehicle sees)."""
         return 2.0 * self.a_per_m
+
+    @property
+    def curvature_sigma_per_m(self) -> float:
+        return 2.0 * math.sqrt(max(float(self.covariance[0, 0]), 0.0))
 
     @property
     def radius_m(self) -> float:
@@ -148,12 +154,12 @@ def fit_circle(x_m: FloatArray, y_m: FloatArray, *, robust_scale_m: float = 0.05
     s = math.sqrt(max(1.0 + 4.0 * a * d, 0.0))
     residuals = _distances(result.x, xs, ys) * spread
     dof = x_m.size - 3
-    sigma_kappa = math.inf
+    covariance = np.full((3, 3), math.inf)
     if dof > 0:
         jac = np.asarray(result.jac)
         variance = float(np.sum((residuals / spread) ** 2)) / dof
-        covariance = np.linalg.pinv(jac.T @ jac) * variance
-        sigma_kappa = 2.0 * math.sqrt(max(float(covariance[0, 0]), 0.0)) / spread
+        unscale = np.diag([1.0 / spread, spread, 1.0])  # (A', D', θ) -> (A, D, θ)
+        covariance = unscale @ np.linalg.pinv(jac.T @ jac) @ unscale * variance
     return CircleFit(
         origin_x_m=x0,
         origin_y_m=y0,
@@ -163,7 +169,7 @@ def fit_circle(x_m: FloatArray, y_m: FloatArray, *, robust_scale_m: float = 0.05
         d_m=d * spread,
         residuals_m=residuals,
         rms_m=float(np.sqrt(np.mean(residuals**2))),
-        curvature_sigma_per_m=sigma_kappa,
+        covariance=covariance,
         converged=bool(result.success),
         method="Pratt algebraic start, geometric least squares (A, D, θ), soft-L1 loss",
     )
@@ -190,6 +196,36 @@ def tangent_offsets_rad(
     flip = np.where(hx * tx + hy * ty < 0.0, -1.0, 1.0)
     tx, ty = tx * flip, ty * flip
     return np.asarray(np.arctan2(hx * ty - hy * tx, hx * tx + hy * ty))
+
+
+def mean_tangent_offset_rad(
+    fit: CircleFit, x_m: FloatArray, y_m: FloatArray, heading_rad: FloatArray
+) -> tuple[float, float]:
+    """The mean of :func:`tangent_offsets_rad` and its sigma.
+
+    The sigma has two parts, added in quadrature: the scatter of the offsets about their
+    mean (heading noise, and position noise along the curve), and the circle's own
+    uncertainty, which turns every tangent the same way at once and so does not average
+    out (the covariance carried through the mean by a numerical gradient).
+    """
+    offsets = tangent_offsets_rad(fit, x_m, y_m, heading_rad)
+    mean = float(np.mean(offsets))
+    scatter = float(np.var(offsets, ddof=1)) / offsets.size if offsets.size > 1 else math.inf
+    if not np.all(np.isfinite(fit.covariance)):
+        return mean, math.inf
+    params = np.array([fit.a_per_m, fit.d_m, math.atan2(fit.c, fit.b)])
+    steps = np.sqrt(np.maximum(np.diag(fit.covariance), 0.0)) * 1e-3 + 1e-12
+    gradient = np.zeros(3)
+    for i in range(3):
+        shifted = []
+        for sign in (1.0, -1.0):
+            a, d, theta = params + sign * steps[i] * np.eye(3)[i]
+            s = math.sqrt(max(1.0 + 4.0 * a * d, 0.0))
+            moved = replace(fit, a_per_m=a, b=s * math.cos(theta), c=s * math.sin(theta), d_m=d)
+            shifted.append(float(np.mean(tangent_offsets_rad(moved, x_m, y_m, heading_rad))))
+        gradient[i] = (shifted[0] - shifted[1]) / (2.0 * steps[i])
+    from_circle = float(gradient @ fit.covariance @ gradient)
+    return mean, math.sqrt(scatter + max(from_circle, 0.0))
 
 
 def arc_length_m(fit: CircleFit, x_m: FloatArray, y_m: FloatArray) -> float:

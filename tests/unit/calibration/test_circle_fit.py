@@ -12,6 +12,7 @@ from hypothesis import strategies as st
 from calibration.circle_fit import (
     arc_length_m,
     fit_circle,
+    mean_tangent_offset_rad,
     signed_curvature_per_m,
     tangent_offsets_rad,
 )
@@ -94,6 +95,23 @@ def test_noisy_arc_recovers_the_radius_within_its_stated_sigma() -> None:
         assert fit.rms_m == pytest.approx(0.02, rel=0.3)
     # The sigma is honest: the misses scatter like a standard normal.
     assert 0.6 < float(np.std(misses)) < 1.5
+
+
+def test_the_mean_sideslip_sigma_counts_the_circle_s_own_uncertainty() -> None:
+    """Heading noise averages out over an arc; the circle's misplacement turns every
+    tangent at once and does not, so a sigma from the scatter alone would be too small."""
+    rng = np.random.default_rng(11)
+    beta = math.radians(3.0)
+    misses = []
+    for _ in range(60):
+        x, y, heading = arc(0.0, 0.0, 4.0, 0.0, 2.0, 120, 1.0)
+        x, y = x + rng.normal(0, 0.02, 120), y + rng.normal(0, 0.02, 120)
+        noisy_heading = heading - beta + rng.normal(0, math.radians(0.2), 120)
+        fit = fit_circle(x, y, robust_scale_m=0.06)
+        mean, sigma = mean_tangent_offset_rad(fit, x, y, noisy_heading)
+        misses.append((mean - beta) / sigma)
+    assert abs(float(np.mean(misses))) < 0.5
+    assert 0.7 < float(np.std(misses)) < 1.4
 
 
 def test_a_stray_point_pulls_the_robust_fit_little() -> None:
