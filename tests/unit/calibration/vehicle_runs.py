@@ -16,6 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from appliance.sim.vehicle import VehicleCommand, VehicleParams, VehicleState, step
+from calibration.k_ratio import SteadyTurn
 from calibration.palm_tree_samples import PalmTreeSamples
 from drivers.pc104.messages import MotionPattern
 
@@ -158,3 +159,33 @@ def palm_tree(
         driver.hold(0.5)
     return driver.recorder
 
+
+def steady_turn(
+    wheel_rad: float, speed_mps: float, seconds: float, seed: int, errors: GnssErrors = GnssErrors()
+) -> SteadyTurn:
+    """A turn at a held wheel angle: settle for 8 s, then record ``seconds`` of it (heading
+    with the receiver's noise, the vehicle's own speed with noise, the wheel angle)."""
+    driver = Driver(GnssErrors(jump_m=0.0), seed)
+    driver.front_rad = float(true_tyre_rad(wheel_rad))
+    driver.hold(3.0)
+    rng = np.random.default_rng(seed + 1000)
+    rows: list[tuple[float, float, float, float]] = []
+    settle_s = 8.0
+    start_s = driver.state.t_s
+    while driver.state.t_s - start_s < settle_s + seconds:
+        error = speed_mps - driver.state.speed_mps
+        throttle = 100.0 * min(1.0, max(0.0, 0.05 * speed_mps + 2.0 * error))
+        for _ in range(EPOCH_STEPS):
+            driver._step(throttle, 0.0, False)
+        if driver.state.t_s - start_s >= settle_s:
+            rows.append(
+                (
+                    driver.state.t_s,
+                    driver.state.yaw_rad + rng.normal(0, errors.heading_sigma_rad),
+                    driver.state.speed_mps + rng.normal(0, errors.speed_sigma_mps),
+                    true_wheel_rad(driver.state.front_steer_rad)
+                    + rng.normal(0, errors.wheel_sigma_rad),
+                )
+            )
+    t, heading, speed, wheel = np.array(rows).T
+    return SteadyTurn(t, heading, speed, wheel)
