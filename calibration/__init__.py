@@ -1,7 +1,8 @@
-"""Calibration maneuvers and their fits: pure numpy, no I/O, no clock, no asyncio.
+"""Calibration maneuvers and their fits: numpy and scipy, no I/O, no clock, no asyncio.
 
 What a technician measures once per kit installation becomes numbers here (the pot map's
-polynomial today; pot centre, palm tree, k ratio, look-ahead and pedal sweeps next). The
+polynomial; the palm tree's wheel to tyre map, the counter-steer ratio k, the look-ahead
+schedule and the servo-torque check; pot centre and pedal sweeps next). The
 versioned file those numbers are written to is part of the vehicle's configuration
 (``appliance.config.calibration``, ``appliance.config.calibration_file``), and running a
 maneuver against the daemon is the command line's job; both sit above this package.

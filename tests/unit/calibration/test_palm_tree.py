@@ -221,3 +221,40 @@ def test_garbage_raises_value_error(changes: dict[str, object], message: str) ->
 def test_bad_parameters_raise_value_error(changes: dict[str, float], message: str) -> None:
     with pytest.raises(ValueError, match=message):
         PalmTreeParams(**{"wheelbase_m": 3.6, **changes})  # type: ignore[arg-type]
+
+
+@st.composite
+def columns_maybe_spoilt(draw: st.DrawFn) -> dict[str, object]:
+    """Seven columns of one length, time increasing, then perhaps one thing spoilt."""
+    n = draw(st.integers(1, 80))
+    values = st.lists(st.floats(-1e4, 1e4), min_size=n, max_size=n)
+    names = list(PalmTreeSamples.__dataclass_fields__)
+    columns: dict[str, object] = {name: np.array(draw(values)) for name in names}
+    steps = draw(st.lists(st.floats(1e-3, 2.0), min_size=n, max_size=n))
+    columns["t_s"] = np.cumsum(steps)
+    columns["fix_sigma_m"] = np.abs(np.asarray(columns["fix_sigma_m"])) * 1e-5
+    name = draw(st.sampled_from(names))
+    spoil = draw(st.sampled_from(["none", "nan", "inf", "short", "2-d", "text"]))
+    column = np.asarray(columns[name], dtype=float)
+    if spoil in ("nan", "inf"):
+        column[draw(st.integers(0, n - 1))] = math.nan if spoil == "nan" else math.inf
+        columns[name] = column
+    elif spoil == "short":
+        columns[name] = column[:-1]
+    elif spoil == "2-d":
+        columns[name] = column.reshape(1, -1)
+    elif spoil == "text":
+        columns[name] = ["x"] * n
+    return columns
+
+
+@settings(max_examples=80)
+@given(columns_maybe_spoilt())
+def test_any_columns_fit_or_raise_value_error(columns: dict[str, object]) -> None:
+    """Garbage in gives ValueError, never another exception; what passes the checks fits."""
+    try:
+        samples = PalmTreeSamples(**columns)  # type: ignore[arg-type]
+    except ValueError:
+        return
+    fit = fit_palm_tree(samples, PARAMS)
+    assert fit.samples_used + sum(fit.rejected_samples.values()) == len(samples)
