@@ -9,7 +9,6 @@ that do not qualify (the vehicle stood, the fix was poor) are rejected and count
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -18,7 +17,7 @@ FloatArray = npt.NDArray[np.float64]
 IndexArray = npt.NDArray[np.intp]
 
 
-def sample_array(name: str, values: Any, *, min_samples: int = 1) -> FloatArray:
+def sample_array(name: str, values: npt.ArrayLike, *, min_samples: int = 1) -> FloatArray:
     """``values`` as a 1-D float array of finite numbers, at least ``min_samples`` long."""
     try:
         array = np.asarray(values, dtype=np.float64)

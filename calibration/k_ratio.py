@@ -24,6 +24,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, fields
 
 import numpy as np
+import numpy.typing as npt
 import scipy.optimize
 
 from calibration.fit_inputs import (
@@ -80,9 +81,9 @@ def _combined_sigma(weights: FloatArray, residuals: FloatArray, leverage: float)
 
 
 def fit_k_from_arcs(
-    front_rad: object,
-    rear_rad: object,
-    rear_sigma_rad: object,
+    front_rad: npt.ArrayLike,
+    rear_rad: npt.ArrayLike,
+    rear_sigma_rad: npt.ArrayLike,
     params: KRatioParams = KRatioParams(),
 ) -> KRatioFit:
     """k from per-arc tyre angles (any order: the result does not depend on it)."""

@@ -21,6 +21,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 
 from calibration.fit_inputs import FloatArray, same_length, sample_array
 
@@ -71,9 +72,9 @@ class TyreMapFit:
 
 
 def fit_tyre_map(
-    wheel_rad: Any,
-    tyre_rad: Any,
-    tyre_sigma_rad: Any,
+    wheel_rad: npt.ArrayLike,
+    tyre_rad: npt.ArrayLike,
+    tyre_sigma_rad: npt.ArrayLike,
     *,
     powers: Sequence[int] = (1, 3, 5),
     sigma_floor_rad: float = DEFAULT_SIGMA_FLOOR_RAD,
