@@ -50,6 +50,10 @@ class ManeuverStep(Protocol):
     instructions: tuple[str, ...]
     moves_vehicle: bool
     needed_inputs: tuple[str, ...]  # stale in a sample: the run is aborted
+    # Faults that are what the step measures, not a reason to stop it (the pot map on a
+    # vehicle whose old calibration no longer covers the pot's readings). The daemon's
+    # safe state still holds: only the run goes on.
+    tolerated_faults: frozenset[str]
 
     def preconditions(self, status: Mapping[str, Any]) -> list[str]: ...
 
@@ -80,11 +84,14 @@ def common_problems(status: Mapping[str, Any], step: ManeuverStep) -> list[str]:
     """Preconditions every maneuver shares: no fault, no e-stop, fresh inputs, idle tap."""
     problems = []
     mode = str(status.get("mode", "unknown"))
-    if mode in FAULT_MODES or status.get("estop_latched"):
-        problems.append(f"the daemon is in {mode.upper()}: clear the fault or e-stop first")
-    faults = [str(f.get("key")) for f in status.get("faults", []) if isinstance(f, dict)]
-    if faults:
-        problems.append(f"active faults: {', '.join(faults)}")
+    faults = {str(f.get("key")) for f in status.get("faults", []) if isinstance(f, dict)}
+    untolerated = sorted(faults - step.tolerated_faults)
+    if mode == "estop" or status.get("estop_latched"):
+        problems.append("the e-stop is latched: release and reset it first")
+    elif mode in FAULT_MODES and (untolerated or not faults):
+        problems.append(f"the daemon is in {mode.upper()}: clear the fault first")
+    if untolerated:
+        problems.append(f"active faults: {', '.join(untolerated)}")
     inputs = status.get("inputs") or {}
     stale = [name for name in step.needed_inputs if _stale(inputs, name)]
     if stale:
@@ -104,9 +111,10 @@ def _stale(inputs: Mapping[str, Any], name: str) -> bool:
 def sample_problem(sample: Mapping[str, Any], step: ManeuverStep) -> str | None:
     """What in a sample ends every maneuver: a fault, the e-stop, a needed input stale."""
     mode = str(sample.get("mode"))
-    if mode in FAULT_MODES:
-        faults = ", ".join(sample.get("faults") or ()) or "none named"
-        return f"the daemon went to {mode.upper()} (faults: {faults})"
+    faults = set(sample.get("faults") or ())
+    if mode == "estop" or (mode in FAULT_MODES and not faults <= step.tolerated_faults):
+        named = ", ".join(sorted(faults - step.tolerated_faults)) or "none named"
+        return f"the daemon went to {mode.upper()} (faults: {named})"
     stale = [name for name in step.needed_inputs if name in (sample.get("stale") or ())]
     if stale:
         return f"input stale: {', '.join(stale)}"

@@ -29,7 +29,10 @@ from calibration.pot_centre import PotCentreAccumulator, PotCentreResult
 from calibration.pot_map import PotMapAccumulator, PotMapCoverage, PotMapResult, wheel_rad_at
 
 BAR_WIDTH = 20
-STILL_MPS = 0.05  # a stationary step: faster than this, the vehicle is moving
+# A stationary step: faster than this for longer than MOVING_S, the vehicle is moving.
+# Not tighter: a GNSS/INS speed reads up to ~0.15 m/s on a vehicle standing still.
+STILL_MPS = 0.3
+MOVING_S = 1.0
 MAX_FIX_AGE_S = 0.5
 STILL_WHEEL_RAD = 0.01  # the wheel resting: the encoder moves less than this
 LOCK_TOLERANCE_RAD = 0.3  # back at the lock the sweep started from
@@ -46,6 +49,10 @@ class StepContext:
 def bar(fraction: float) -> str:
     filled = round(max(0.0, min(1.0, fraction)) * BAR_WIDTH)
     return "#" * filled + "." * (BAR_WIDTH - filled)
+
+
+def _counts(value: float | None) -> str:
+    return "none" if value is None else f"{value:.1f} counts"
 
 
 def verdict_text(accepted: bool, reasons: Sequence[str]) -> str:
@@ -71,6 +78,7 @@ class HandStep:
     instructions: tuple[str, ...] = ()
     moves_vehicle = False
     needed_inputs: tuple[str, ...] = ("board.steering", "steering.pot")
+    tolerated_faults: frozenset[str] = frozenset()
 
     def __init__(self, context: StepContext) -> None:
         self.context = context
@@ -82,7 +90,10 @@ class HandStep:
     def preconditions(self, status: Mapping[str, Any]) -> list[str]:
         problems = []
         mode = str(status.get("mode"))
-        if mode not in ("self_check", "ready"):
+        faults = {f.get("key") for f in status.get("faults", []) if isinstance(f, dict)}
+        if mode == "error" and faults and faults <= self.tolerated_faults:
+            pass  # what this step measures; the daemon's safe state holds
+        elif mode not in ("self_check", "ready"):
             problems.append(
                 f"the daemon is in {mode.upper()}: a maneuver by hand needs it in READY or "
                 "SELF_CHECK (disengage first)"
@@ -140,11 +151,10 @@ class PotCentreStep(HandStep):
     def preconditions(self, status: Mapping[str, Any]) -> list[str]:
         problems = super().preconditions(status)
         gnss = status.get("gnss")
-        epoch = gnss.get("epoch") if isinstance(gnss, dict) else None
-        if not isinstance(epoch, dict) or epoch.get("yaw_rate_rad_per_s") is None:
+        if not isinstance(gnss, dict) or not gnss.get("fix") or gnss.get("yaw_deg") is None:
             problems.append(
-                "no GNSS/INS heading rate: the straight stretches are found from it "
-                "(is the receiver connected and fixed?)"
+                "no GNSS/INS fix with a heading: the straight stretches are found from its "
+                "heading rate (is the receiver connected and fixed?)"
             )
         return problems
 
@@ -277,6 +287,10 @@ class PotMapStep(HandStep):
             help="Steering-wheel rad per tyre rad, where no calibration gives it.",
         ),
     )
+    # A remounted pot reads outside the old calibration's range near the locks: the
+    # daemon calls the steering unknown and holds its safe state (brake on, standing
+    # still is what this step wants anyway); the map being measured is the cure.
+    tolerated_faults = frozenset({"steering_unknown"})
     instructions: tuple[str, ...] = (
         "pot-map: with the vehicle standing still, engine running, servo released:",
         "  turn the steering wheel to full RIGHT lock and let it rest 2 s;",
@@ -291,16 +305,32 @@ class PotMapStep(HandStep):
         self._rows = 0
         self._encoder_rad: float | None = None
         self._still_since_s = math.inf
+        self._moving_since_s = math.inf
         self._last_s = -math.inf
+
+    def preconditions(self, status: Mapping[str, Any]) -> list[str]:
+        problems = super().preconditions(status)
+        speed = status.get("measured_speed_mps")
+        if not isinstance(speed, int | float):
+            problems.append("the vehicle's speed is unknown: the pot map is measured standing")
+        elif abs(speed) > STILL_MPS:
+            problems.append(f"the vehicle is moving ({speed:.2f} m/s): stop it first")
+        return problems
 
     def take(self, sample: Mapping[str, Any]) -> str | None:
         speed = _speed(sample)
-        if speed is not None and abs(speed) > STILL_MPS:
-            return f"the vehicle moved ({speed:.2f} m/s): the pot map is measured standing"
         pot = _number(sample, "pot_counts")
         encoder = _number(sample, "servo_position_rad")
         t_s = _number(sample, "t_s")
-        if pot is None or encoder is None or t_s is None:
+        if t_s is None:
+            return None
+        if speed is None or abs(speed) <= STILL_MPS:
+            self._moving_since_s = math.inf
+        else:
+            self._moving_since_s = min(self._moving_since_s, t_s)
+            if t_s - self._moving_since_s >= MOVING_S:
+                return f"the vehicle moved ({speed:.2f} m/s): the pot map is measured standing"
+        if pot is None or encoder is None:
             return None
         # By hand nothing is commanded: the wheel is where the hands hold it.
         command = _number(sample, "steer_setpoint_rad")
@@ -367,8 +397,8 @@ def pot_map_report(
         f"{len(result.pauses)}, counts "
         f"{result.usable_min_counts:.0f}..{result.usable_max_counts:.0f}"
         f" (valid {result.pot_valid_min_counts}..{result.pot_valid_max_counts})",
-        f"  centre {result.pot_centre_counts} ({result.centre_from}), backlash "
-        f"{result.backlash_rad:.4f} rad of wheel (+-{result.backlash_std_error_rad:.4f}), "
+        f"  centre {_counts(result.pot_centre_counts)} ({result.centre_from}), backlash "
+        f"{abs(result.backlash_rad):.4f} rad of wheel (+-{result.backlash_std_error_rad:.4f}), "
         f"monotonic {'yes' if result.monotonic else 'NO'}",
         f"  residuals {result.residual_rms_tyre_deg:.3f} deg tyre rms, "
         f"{result.residual_max_tyre_deg:.3f} max",

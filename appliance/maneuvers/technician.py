@@ -31,6 +31,7 @@ class Pose:
     t_s: float
     wheel_rad: float | None  # None: hands off the wheel
     throttle_pct: float = 0.0
+    brake_pct: float = 0.0
 
 
 def pot_map_schedule(
@@ -68,6 +69,7 @@ def straight_legs_schedule(
     throttle_pct: float = 25.0,
     correction_rad: float = 0.05,
     correction_period_s: float = 7.0,
+    stop_s: float = 6.0,
     step_s: float = 0.1,
 ) -> list[Pose]:
     """Stanley et al.'s first step: ``legs`` stretches along a visual reference, the
@@ -85,8 +87,9 @@ def straight_legs_schedule(
             wheel = correction_rad * math.sin(2.0 * math.pi * now / correction_period_s)
             poses.append(Pose(now, wheel, throttle_pct))
         t_s += leg_s
-    poses.append(Pose(t_s, 0.0, 0.0))
-    poses.append(Pose(t_s + 1.0, None, 0.0))
+    # Off the throttle, braking to a stop, then hands and feet off.
+    poses.append(Pose(t_s, 0.0, 0.0, 60.0))
+    poses.append(Pose(t_s + stop_s, None, 0.0, 0.0))
     return poses
 
 
@@ -113,6 +116,7 @@ async def play(
     async with ControlClient(bench_path, timeout_s=5.0) as bench:
         started = clock()
         throttle: float | None = None
+        brake: float | None = None
         try:
             for pose in poses:
                 delay = started + pose.t_s / speed - clock()
@@ -122,6 +126,9 @@ async def play(
                 if pose.throttle_pct != throttle:
                     throttle = pose.throttle_pct
                     await _pedal(bench, throttle)
+                if pose.brake_pct != brake:
+                    brake = pose.brake_pct
+                    await _pedal(bench, brake, "brake")
         finally:
             await asyncio.shield(_let_go(bench))
 
@@ -129,10 +136,11 @@ async def play(
 async def _let_go(bench: ControlClient) -> None:
     await _call(bench, {"op": "hands", "wheel_rad": None})
     await _pedal(bench, 0.0)
+    await _pedal(bench, 0.0, "brake")
 
 
-async def _pedal(bench: ControlClient, pct: float) -> None:
-    await _call(bench, {"op": "pedal", "pedal": "throttle", "pct": pct})
+async def _pedal(bench: ControlClient, pct: float, pedal: str = "throttle") -> None:
+    await _call(bench, {"op": "pedal", "pedal": pedal, "pct": pct})
 
 
 async def _call(bench: ControlClient, request: dict[str, object]) -> None:
