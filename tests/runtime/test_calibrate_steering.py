@@ -79,8 +79,11 @@ async def tapping(command: asyncio.Task[Result], daemon: Any) -> None:
 
 
 def fixed(daemon: Any) -> bool:
-    gnss = daemon.status_document().get("gnss")
-    return isinstance(gnss, dict) and bool(gnss.get("fix"))
+    """A fix, and the speed the core takes from it (a standing step needs to see it)."""
+    status = daemon.status_document()
+    gnss = status.get("gnss")
+    fix = isinstance(gnss, dict) and bool(gnss.get("fix"))
+    return fix and status.get("measured_speed_mps") is not None
 
 
 def tyre_deg_error(calibration: Calibration, truth: PotMapping) -> float:
