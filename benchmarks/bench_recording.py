@@ -39,7 +39,7 @@ from pathlib import Path
 
 from appliance.logs import configure_logging
 from appliance.modes import Mode
-from appliance.recording.reader import RecordingReader
+from appliance.recording.reader import RecordingReader, read_metadata
 from appliance.recording.replay import Replayer, ReplayResult, core_from_metadata
 from benchmarks.bench_soak import Soak, run_as_the_unit_does, say
 
@@ -100,9 +100,9 @@ def recording_lines(directory: Path, seconds: float | None) -> list[str]:
         return Replayer(core_from_metadata(metadata)).feed(messages)
 
     def from_files() -> ReplayResult:
-        replayer = Replayer(core_from_metadata(metadata))
+        replayer = Replayer(core_from_metadata(read_metadata(files[0])))
         for path in files:
-            replayer.feed(RecordingReader(path).messages())
+            replayer.feed_file(path)
         return replayer.result
 
     result, times = timed(in_memory)

@@ -20,6 +20,7 @@ import json
 import math
 from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass, field, replace
+from pathlib import Path
 from typing import Any
 
 from appliance.config import VehicleConfig
@@ -38,7 +39,7 @@ from appliance.recording.channels import (
 from appliance.recording.codec import CodecError
 from appliance.recording.fastcodec import decode_fast as decode
 from appliance.recording.fastcodec import encode_fast
-from appliance.recording.reader import RecordedMessage
+from appliance.recording.reader import RecordedMessage, RecordingReader
 from drivers.lms111.mounted import MountedScan
 
 # Scan samples kept per side: a cycle sees the newest or one just before it.
@@ -153,7 +154,25 @@ class Replayer:
             self.handle(message)
         return self.result
 
+    def feed_file(self, file: Path | RecordingReader) -> RecordingReader:
+        """Replay one file as it is read, taking only the topics replay uses; its reader
+        (and report) back. The result's time span is still the file's whole span, every
+        topic's first message to the last, as when every message is fed."""
+        reader = file if isinstance(file, RecordingReader) else RecordingReader(file)
+        report, result = reader.report, self.result
+        for message in reader.messages(wanted=replayed_topic):
+            if result.first_log_time_ns is None:
+                result.first_log_time_ns = report.first_log_time_ns
+            self.handle(message)
+        if result.first_log_time_ns is None:
+            result.first_log_time_ns = report.first_log_time_ns
+        last = report.last_log_time_ns
+        if last is not None and (result.last_log_time_ns is None or last > result.last_log_time_ns):
+            result.last_log_time_ns = last
+        return reader
+
     def handle(self, message: RecordedMessage) -> None:
+        """One message, in recorded order; a topic replay does not use is passed over."""
         topic = message.topic
         result = self.result
         if result.first_log_time_ns is None:
@@ -258,6 +277,15 @@ class Replayer:
             self.result.divergences.append(
                 Divergence(log_time_ns, now_s, topic, path, recorded, replayed)
             )
+
+
+def replayed_topic(topic: str) -> bool:
+    """The topics `Replayer.handle` acts on; the rest of a recording is for looking."""
+    return topic in _REPLAYED_TOPICS or topic.startswith(_SCAN_TOPIC_PREFIX)
+
+
+_REPLAYED_TOPICS = frozenset({CYCLE_TOPIC, RESET_TOPIC, REQUEST_TOPIC})
+_SCAN_TOPIC_PREFIX = SAMPLE_TOPIC_PREFIX + "scan."
 
 
 def _is_number(value: Any) -> bool:
