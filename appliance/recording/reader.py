@@ -10,12 +10,12 @@ finished, and every problem, each in one line.
 
 from __future__ import annotations
 
-import json
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from appliance.recording.json_text import loads
 from appliance.recording.mcap_records import (
     ChannelRecord,
     ChunkContents,
@@ -48,7 +48,7 @@ class RecordedMessage:
     data: bytes
 
     def json(self) -> Any:
-        return json.loads(self.data)
+        return loads(self.data)
 
 
 @dataclass
