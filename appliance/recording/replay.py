@@ -40,8 +40,8 @@ from appliance.recording.channels import (
     cycle_ending,
 )
 from appliance.recording.codec import CodecError
-from appliance.recording.fastcodec import decode_fast as decode
 from appliance.recording.fastcodec import encode_fast
+from appliance.recording.fastdecode import decode_fast as decode
 from appliance.recording.reader import RecordedMessage, RecordingReader
 from drivers.lms111.mounted import MountedScan
 
