@@ -1,6 +1,7 @@
 """The compiled decoders make the very objects the reference decoder makes: the same types,
 equal, with the same attributes in the same order, whether a record is made by calling
-its class or stored field by field; and an enum member is the one its class returns."""
+its class or stored field by field; an enum member is the one its class returns; and an
+array is the reference's array, or refused by both."""
 
 from __future__ import annotations
 
@@ -11,12 +12,15 @@ from typing import Any, NamedTuple
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from hypothesis.extra import numpy as hnp
 
 from appliance.core.inputs import ControlInputs
 from appliance.recording.codec import CodecError, decode, encode
 from appliance.recording.fastdecode import _direct_constructor, decode_fast
 from drivers.lms111.mounted import MountedScan
-from tests.unit.recording.test_codec import GNSS_POSE, _inputs, _scans
+from tests.unit.recording.test_codec import ARRAY_DTYPES, GNSS_POSE, _inputs, _scans
 
 
 def same_objects(a: Any, b: Any, where: str = "$") -> None:
@@ -154,3 +158,40 @@ def test_a_class_with_a_post_init_still_runs_it() -> None:
     with pytest.raises(dataclasses.FrozenInstanceError):
         plain.a = 2  # type: ignore[misc]
     assert decode_fast({"a": 1}, Plain) == Plain(1)  # a default: made by calling the class
+
+
+def _array_outcome(decoder: Any, data: Any) -> Any:
+    try:
+        return decoder(data, np.ndarray)
+    except CodecError:
+        return CodecError
+
+
+@settings(max_examples=150, deadline=None)
+@given(
+    hnp.arrays(ARRAY_DTYPES, hnp.array_shapes(min_dims=0, max_dims=2, min_side=0, max_side=6)),
+    st.sampled_from(["<", ">"]),
+    st.sampled_from(["none", "b64", "shape", "dtype", "extra", "missing"]),
+    st.data(),
+)
+def test_an_array_decodes_as_the_reference_decodes_it(
+    array: np.ndarray, order: str, damage: str, data: st.DataObject
+) -> None:
+    """Whole, or with one part replaced: the same array (dtype, shape, bytes, read-only),
+    or a refusal from both."""
+    encoded = encode(array.astype(array.dtype.newbyteorder(order)), np.ndarray)
+    if damage == "b64":
+        encoded["b64"] = data.draw(st.text(alphabet="AB=+/!é \n", max_size=12) | st.integers())
+    elif damage == "shape":
+        encoded["shape"] = data.draw(st.lists(st.integers(-2, 8) | st.booleans(), max_size=2))
+    elif damage == "dtype":
+        encoded["dtype"] = data.draw(st.sampled_from(["<u2", "|u1", ">u2", "<f2", 5, None]))
+    elif damage == "extra":
+        encoded["note"] = 1
+    elif damage == "missing":
+        del encoded[data.draw(st.sampled_from(["dtype", "shape", "b64"]))]
+    fast, reference = _array_outcome(decode_fast, encoded), _array_outcome(decode, encoded)
+    if reference is CodecError or fast is CodecError:
+        assert fast is reference
+        return
+    same_objects(fast, reference)
