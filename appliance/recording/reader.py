@@ -6,6 +6,10 @@ checked, and it is used up to the last chunk that is whole. A damaged chunk is r
 and skipped, not trusted; what follows it is still read. `RecordingReader.report` says
 what was found: chunks, messages per topic, the time span, whether the file was
 finished, and every problem, each in one line.
+
+The records come from `mcap_records`, this project's own reader of the format (its
+docstring says why not the mcap library's); `messages(wanted=...)` names the topics to
+hand on, and the rest of each chunk is counted but never copied or parsed.
 """
 
 from __future__ import annotations
@@ -147,7 +151,8 @@ class RecordingReader:
                 elif isinstance(record, MessageRecord):
                     if metadata_only:
                         return
-                    yield from self._take_chunk(_alone(record), wants)
+                    wanted_here = self._wanted_ids is None or record.channel_id in self._wanted_ids
+                    yield from self._take_chunk(_alone(record, wanted_here), wants)
                 elif isinstance(record, MetadataRecord):
                     report.metadata[record.name] = record.metadata
                 elif isinstance(record, SchemaRecord | ChannelRecord):
@@ -189,10 +194,15 @@ class RecordingReader:
                 yield RecordedMessage(channel[0], channel[1], log_time_ns, sequence, data)
 
 
-def _alone(message: MessageRecord) -> ChunkContents:
-    """A message outside any chunk, taken as a chunk of its own."""
+def _alone(message: MessageRecord, wanted: bool) -> ChunkContents:
+    """A message outside any chunk, taken as a chunk of its own: counted, and handed on
+    if it is ``wanted``."""
     return ChunkContents(
-        [], [message], {message.channel_id: 1}, message.log_time_ns, message.log_time_ns
+        [],
+        [message] if wanted else [],
+        {message.channel_id: 1},
+        message.log_time_ns,
+        message.log_time_ns,
     )
 
 

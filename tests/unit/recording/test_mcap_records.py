@@ -188,18 +188,20 @@ def test_the_data_sections_crc_is_checked(tmp_path: Path, chunk_crcs: bool) -> N
     assert ours(bytes(flipped), tmp_path / "x.mcap") == expected
 
 
+@pytest.mark.parametrize("chunked", [True, False], ids=["chunks", "messages-alone"])
 def test_wanted_topics_are_the_same_messages_and_the_same_report(
-    recorded: bytes, tmp_path: Path
+    recorded: bytes, tmp_path: Path, chunked: bool
 ) -> None:
     path = tmp_path / "x.mcap"
-    path.write_bytes(recorded)
+    path.write_bytes(recorded if chunked else _library_written(False, CompressionType.NONE, True))
+    topic = "/dbw/cycle" if chunked else "/t/late"
     whole = RecordingReader(path)
     everything = whole.read_all()
     picked = RecordingReader(path)
-    cycles = list(picked.messages(wanted=lambda topic: topic == "/dbw/cycle"))
-    assert cycles == [m for m in everything if m.topic == "/dbw/cycle"] and cycles
+    wanted = list(picked.messages(wanted=lambda name: name == topic))
+    assert wanted == [m for m in everything if m.topic == topic] and wanted
     assert picked.report == whole.report
-    assert list(RecordingReader(path).messages(wanted=lambda topic: False)) == []
+    assert list(RecordingReader(path).messages(wanted=lambda name: False)) == []
 
 
 def test_read_metadata_opens_no_chunk(recorded: bytes, tmp_path: Path) -> None:
