@@ -241,24 +241,30 @@ def split_chunk(
     defined_here: set[int] = set()
     messages, counts = contents.messages, contents.count_by_channel
     record_head, message_head = _RECORD_HEAD.unpack_from, _MESSAGE_HEAD.unpack_from
+    head_size, data_at = _RECORD_HEAD.size, _MESSAGE_DATA_AT
     first = last = None
     view = memoryview(data)
     at, end = 0, len(data)
     try:
         while at < end:
             opcode, length = record_head(data, at)
-            body, at = at + 9, at + 9 + length
+            body = at + head_size
+            at = body + length
             if at > end:
                 raise ChunkError("a record runs past the end of its chunk")
             if opcode == OP_MESSAGE:
-                if length < _MESSAGE_DATA_AT:
+                if length < data_at:
                     raise ChunkError("a message record shorter than its header")
-                channel_id, sequence, last = message_head(data, body)
+                channel_id, sequence, log_time_ns = message_head(data, body)
                 if first is None:
-                    first = last
+                    first = log_time_ns
+                last = log_time_ns
                 counts[channel_id] = counts.get(channel_id, 0) + 1
                 if wanted is None or channel_id in wanted or channel_id in defined_here:
-                    messages.append(MessageRecord(channel_id, last, sequence, data[body + 22 : at]))
+                    message = MessageRecord(
+                        channel_id, log_time_ns, sequence, data[body + data_at : at]
+                    )
+                    messages.append(message)
             elif opcode == OP_CHANNEL:
                 channel = _channel(_Fields(view[body:at]))
                 contents.definitions.append(channel)
