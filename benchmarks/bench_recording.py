@@ -10,7 +10,9 @@ the daemon, for a full pipe; in the recorder, for a low disk), and `dbw record c
 verdict. Then replay of that recording (both scanners' samples in it), each way three
 times, its real-time factor best and median: from messages already in memory (the core,
 the codec and the comparison), from the files (reading and checking them too), and
-`dbw replay --compare` in a process of its own; and whether every output matched.
+`dbw replay --compare` in a process of its own; and whether every output matched. The
+daemon runs at the systemd unit's niceness, replay at the niceness the benchmark was
+started with (``nice -n 19`` on a shared machine).
 
     python -m benchmarks.bench_recording                 # 60 s off, 60 s on
     python -m benchmarks.bench_recording --seconds 20
@@ -178,7 +180,8 @@ def main(argv: list[str] | None = None) -> None:
     args = parser.parse_args(argv if argv is not None else sys.argv[1:])
     configure_logging("warning", stream=sys.stderr, json=True)
     load = ", ".join(f"{x:.2f}" for x in os.getloadavg())
-    niceness = run_as_the_unit_does()
+    started_nice = os.getpriority(os.PRIO_PROCESS, 0)
+    niceness = run_as_the_unit_does() if args.replay is None else "none (replay only)"
     say(
         "## the flight recorder's cost, size and replay (benchmarks/bench_recording.py)",
         f"machine: {platform.platform()}, Python {platform.python_version()}, "
@@ -199,6 +202,9 @@ def main(argv: list[str] | None = None) -> None:
             directory = args.keep
             directory.mkdir(parents=True, exist_ok=True)
         say(*asyncio.run(one_run(args.seconds, str(directory), args.speed_mps)))
+        # Replay is a command a person runs: at the niceness this was started with.
+        os.setpriority(os.PRIO_PROCESS, 0, started_nice)
+        say(f"  replay at nice {started_nice}, as this benchmark was started")
         say(*recording_lines(directory, args.seconds))
 
 
