@@ -163,12 +163,11 @@ def replay(
         bad_input(str(exc))
     files = session_files(file)
     first = RecordingReader(files[0])
-    messages = first.messages()
-    head = next(messages, None)
-    if head is None:
-        bad_input(f"{files[0]}: no messages ({'; '.join(first.report.problems) or 'empty'})")
+    metadata = first.read_metadata()
+    if not metadata and first.report.problems:
+        bad_input(f"{files[0]}: not a recording ({'; '.join(first.report.problems)})")
     try:
-        core = core_from_metadata(first.report.metadata)
+        core = core_from_metadata(metadata)
     except ReplayError as exc:
         bad_input(f"{files[0]}: {exc}")
     dumped: dict[str, Any] = {}
@@ -176,24 +175,20 @@ def replay(
     class Stop(Exception):
         pass
 
-    start_ns = head.log_time_ns
-
     def on_cycle(log_ns: int, now_s: float, inputs: Any, output: Any) -> None:
+        start_ns = replayer.result.first_log_time_ns or log_ns  # the file's first message
         if until_s is not None and (log_ns - start_ns) / 1e9 >= until_s:
             if dump:
                 dumped.update(_dump(log_ns - start_ns, now_s, inputs, output))
             raise Stop
 
     replayer = Replayer(core, parsed, on_cycle=on_cycle)
-    readers = [first]
+    readers: list[RecordingReader] = []
     started = time.perf_counter()
     try:
-        replayer.handle(head)
-        replayer.feed(messages)
-        for path in files[1:]:
-            reader = RecordingReader(path)
-            readers.append(reader)
-            replayer.feed(reader.messages())
+        for path in files:
+            readers.append(RecordingReader(path))  # kept: its report, should replay stop in it
+            replayer.feed_file(readers[-1])
     except Stop:
         pass
     except ReplayError as exc:
@@ -205,6 +200,9 @@ def replay(
         return
     result = replayer.result
     problems = [f"{r.path.name}: {p}" for r in readers for p in r.report.problems]
+    if not any(r.report.messages for r in readers):
+        bad_input(f"{files[0]}: no messages ({'; '.join(problems) or 'empty'})")
+    start_ns = result.first_log_time_ns or 0
     summary = {
         "files": [str(p) for p in files],
         "cycles": result.cycles,

@@ -276,6 +276,13 @@ def encode_cycle(
         )
 
 
+def cycle_ending(output: Any) -> bytes:
+    """The last bytes of a cycle's message whose encoded output is ``output``
+    (`encode_cycle` writes the output last): replay compares its own output's bytes with
+    these before it decodes anything of the recorded one."""
+    return b',"output":' + _dumps(output) + b"}"
+
+
 _LEVELS = {"fault_raised": 4, "safe_stop": 4, "fault_cleared": 2}
 
 

@@ -1,12 +1,12 @@
-"""The codec of `codec.py`, compiled once per type: what the recorder and replay run.
+"""The encoder of `codec.py`, compiled once per type: what the recorder and replay run.
 
 `codec.encode` and `codec.decode` walk a value's declared type on every call (type hints,
 ``typing.get_origin``, one ``isinstance`` per branch); a replay decodes a cycle's inputs
 fifty times a second of recording and spent most of its time there. Here each declared
-type becomes a closure once (`encoder_for`, `decoder_for`) that does only the work that
-value needs. The format and every check are the same: `codec.py` stays the reference,
-and the tests hold these to it on real objects and on arbitrary JSON (same output, same
-refusals).
+type becomes a closure once (`encoder_for`; the decoding side is `fastdecode.py`'s
+`decoder_for`) that does only the work that value needs. The format and every check are
+the same: `codec.py` stays the reference, and the tests hold these to it on real objects
+and on arbitrary JSON (same output, same refusals).
 """
 
 from __future__ import annotations
@@ -23,31 +23,18 @@ import numpy as np
 from appliance.recording.codec import (
     CodecError,
     JsonValue,
-    _decode_array,
     _encode_array,
     _encode_free,
     _fields,
 )
 
 Encoder = Callable[[Any], JsonValue]
-Decoder = Callable[[JsonValue], Any]
 
 _ENCODERS: dict[Any, Encoder] = {}
-_DECODERS: dict[Any, Decoder] = {}
-_NON_FINITE = {"inf": math.inf, "-inf": -math.inf, "nan": math.nan}
 
 
 def encode_fast(value: Any, declared: Any) -> JsonValue:
     return encoder_for(declared)(value)
-
-
-def decode_fast(data: JsonValue, declared: Any) -> Any:
-    try:
-        return decoder_for(declared)(data)
-    except CodecError:
-        raise
-    except (TypeError, ValueError, KeyError, AttributeError, OverflowError) as exc:
-        raise CodecError(f"{declared!r}: {exc}") from exc
 
 
 def encoder_for(declared: Any) -> Encoder:
@@ -56,14 +43,6 @@ def encoder_for(declared: Any) -> Encoder:
         # A placeholder first: a type that refers to itself finds its own encoder.
         _ENCODERS[declared] = lambda value: _ENCODERS[declared](value)
         found = _ENCODERS[declared] = _build_encoder(declared)
-    return found
-
-
-def decoder_for(declared: Any) -> Decoder:
-    found = _DECODERS.get(declared)
-    if found is None:
-        _DECODERS[declared] = lambda data: _DECODERS[declared](data)
-        found = _DECODERS[declared] = _build_decoder(declared)
     return found
 
 
@@ -222,191 +201,5 @@ def _union_encoder(arms: tuple[Any, ...]) -> Encoder:
             if isinstance(value, arm):
                 return each(value)
         raise CodecError(f"{type(value).__name__} is none of {arms!r}")
-
-    return union
-
-
-# ---- decoders ------------------------------------------------------------------------
-
-
-def _build_decoder(declared: Any) -> Decoder:
-    if declared is Any:
-        return lambda data: data
-    origin = typing.get_origin(declared)
-    if origin is typing.Union or origin is types.UnionType:
-        return _union_decoder(typing.get_args(declared))
-    if declared is type(None):
-
-        def none(data: JsonValue) -> Any:
-            if data is not None:
-                raise CodecError(f"expected null, got {data!r:.40}")
-            return None
-
-        return none
-    if origin is None and isinstance(declared, type):
-        return _class_decoder(declared)
-    if origin is tuple:
-        return _tuple_decoder(typing.get_args(declared))
-    if origin in (list, Sequence):
-        (item,) = typing.get_args(declared) or (Any,)
-        each = decoder_for(item)
-        return lambda data: [each(v) for v in _list(data)]
-    if origin in (dict, Mapping):
-        _, item = typing.get_args(declared) or (str, Any)
-        each = decoder_for(item)
-
-        def mapping(data: JsonValue) -> Any:
-            out = {}
-            for k, v in _object(data).items():
-                if not isinstance(k, str):
-                    raise CodecError(f"mapping keys must be strings, got {type(k).__name__}")
-                out[k] = each(v)
-            return out
-
-        return mapping
-    if origin is np.ndarray:
-        return _decode_array
-    if origin is typing.Literal:
-        allowed = typing.get_args(declared)
-
-        def literal(data: JsonValue) -> Any:
-            if data not in allowed:
-                raise CodecError(f"{data!r:.40} is not one of {allowed}")
-            return data
-
-        return literal
-    raise CodecError(f"cannot decode declared type {declared!r}")
-
-
-def _list(data: JsonValue) -> list[Any]:
-    if data.__class__ is not list:
-        raise CodecError(f"expected an array, got {type(data).__name__}")
-    return data
-
-
-def _object(data: JsonValue) -> dict[str, Any]:
-    if data.__class__ is not dict:
-        raise CodecError(f"expected an object, got {type(data).__name__}")
-    return typing.cast(dict[str, Any], data)
-
-
-def _decode_float(data: JsonValue) -> float:
-    cls = data.__class__
-    if cls is float:
-        return typing.cast(float, data)
-    if cls is int:
-        return float(data)
-    if cls is str and data in _NON_FINITE:
-        return _NON_FINITE[data]
-    raise CodecError(f"expected a number, got {data!r:.40}")
-
-
-def _decode_int(data: JsonValue) -> int:
-    if data.__class__ is not int:
-        raise CodecError(f"expected an integer, got {data!r:.40}")
-    return data
-
-
-def _decode_bool(data: JsonValue) -> bool:
-    if data.__class__ is not bool:
-        raise CodecError(f"expected a boolean, got {data!r:.40}")
-    return data
-
-
-def _decode_str(data: JsonValue) -> str:
-    if data.__class__ is not str:
-        raise CodecError(f"expected a string, got {data!r:.40}")
-    return data
-
-
-def _class_decoder(cls: type) -> Decoder:
-    if cls is bool:
-        return _decode_bool
-    if cls is int:
-        return _decode_int
-    if cls is float:
-        return _decode_float
-    if cls is str:
-        return _decode_str
-    if issubclass(cls, enum.Enum):
-
-        def member(data: JsonValue) -> Any:
-            try:
-                return cls(data)
-            except ValueError as exc:
-                raise CodecError(f"{data!r:.40} is not a {cls.__name__}") from exc
-
-        return member
-    if cls is np.ndarray:
-        return _decode_array
-    fields = _fields(cls)
-    if fields is None:
-        raise CodecError(f"cannot decode {cls.__name__}: not a dataclass or named tuple")
-    decoders = tuple((name, decoder_for(hint)) for name, hint in fields)
-    names = frozenset(name for name, _ in fields)
-
-    def record(data: JsonValue) -> Any:
-        obj = _object(data)
-        if not names.issuperset(obj):
-            unknown = sorted(set(obj) - names)[0]
-            raise CodecError(f"{cls.__name__} has no field {unknown!r}")
-        kwargs = {name: each(obj[name]) for name, each in decoders if name in obj}
-        try:
-            return cls(**kwargs)
-        except TypeError as exc:
-            raise CodecError(f"{cls.__name__}: {exc}") from exc
-
-    return record
-
-
-def _tuple_decoder(args: tuple[Any, ...]) -> Decoder:
-    if len(args) == 2 and args[1] is Ellipsis:
-        each = decoder_for(args[0])
-        return lambda data: tuple(each(v) for v in _list(data))
-    decoders = tuple(decoder_for(a) for a in args)
-
-    def fixed(data: JsonValue) -> Any:
-        items = _list(data)
-        if len(items) != len(decoders):
-            raise CodecError(f"expected {len(decoders)} items, got {len(items)}")
-        return tuple(d(v) for d, v in zip(decoders, items, strict=True))
-
-    return fixed
-
-
-def _union_decoder(arms: tuple[Any, ...]) -> Decoder:
-    nullable = type(None) in arms
-    classes = [a for a in arms if a is not type(None)]
-    if len(classes) == 1:
-        inner = decoder_for(classes[0])
-
-        def optional(data: JsonValue) -> Any:
-            if data is None:
-                if not nullable:
-                    raise CodecError("null where the type does not allow it")
-                return None
-            return inner(data)
-
-        return optional
-    by_name = {arm.__name__: decoder_for(arm) for arm in classes if isinstance(arm, type)}
-    in_turn = [decoder_for(arm) for arm in classes]
-
-    def union(data: JsonValue) -> Any:
-        if data is None:
-            if not nullable:
-                raise CodecError("null where the type does not allow it")
-            return None
-        if isinstance(data, dict) and "_type" in data:
-            name = data["_type"]
-            each = by_name.get(name) if isinstance(name, str) else None
-            if each is None:
-                raise CodecError(f"_type {name!r:.40} is none of {arms!r}")
-            return each({k: v for k, v in data.items() if k != "_type"})
-        for each in in_turn:
-            try:
-                return each(data)
-            except CodecError:
-                continue
-        raise CodecError(f"{data!r:.40} is none of {arms!r}")
 
     return union

@@ -6,38 +6,41 @@ checked, and it is used up to the last chunk that is whole. A damaged chunk is r
 and skipped, not trusted; what follows it is still read. `RecordingReader.report` says
 what was found: chunks, messages per topic, the time span, whether the file was
 finished, and every problem, each in one line.
+
+The records come from `mcap_records`, this project's own reader of the format (its
+docstring says why not the mcap library's); `messages(wanted=...)` names the topics to
+hand on, and the rest of each chunk is counted but never copied or parsed.
 """
 
 from __future__ import annotations
 
-import json
-import struct
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from mcap.exceptions import McapError
-from mcap.records import Channel, Chunk, Footer, Message, Metadata, Schema
-from mcap.stream_reader import StreamReader, breakup_chunk
-from zstandard import ZstdError
+from appliance.recording.json_text import loads
+from appliance.recording.mcap_records import (
+    ChannelRecord,
+    ChunkContents,
+    ChunkError,
+    ChunkRecord,
+    FooterRecord,
+    McapFileError,
+    MessageRecord,
+    MetadataRecord,
+    SchemaRecord,
+    chunk_data,
+    new_decompressor,
+    read_records,
+    split_chunk,
+)
 
 # A chunk is a megabyte or so; a length beyond this is damage, not data.
 RECORD_SIZE_LIMIT_BYTES = 256 * 1024 * 1024
-# What mcap lets through from a file that ends inside a record (struct.error: a length
-# or a number cut short) or whose record is damaged (OverflowError: a length past what
-# a read can be asked for).
-_RECORD_ERRORS = (
-    McapError,
-    ValueError,
-    EOFError,
-    OSError,
-    MemoryError,
-    OverflowError,
-    struct.error,
-)
-# ... and from a damaged chunk's data (ZstdError: the compressed data does not decompress).
-_CHUNK_ERRORS = (*_RECORD_ERRORS, ZstdError)
+# What reading can raise besides a record that does not parse: the disk (OSError), and a
+# damaged length that asks for more memory than there is.
+_READ_ERRORS = (McapFileError, OSError, MemoryError)
 
 
 @dataclass(frozen=True)
@@ -49,7 +52,7 @@ class RecordedMessage:
     data: bytes
 
     def json(self) -> Any:
-        return json.loads(self.data)
+        return loads(self.data)
 
 
 @dataclass
@@ -78,91 +81,129 @@ class ReadReport:
 
 
 class RecordingReader:
-    """Messages of one MCAP file in file order; `report` fills in as they are read."""
+    """Messages of one MCAP file in file order; `report` fills in as they are read.
+
+    ``wanted`` picks topics before anything of a message is decoded or copied: replay
+    needs a few of the recording's channels. The report still counts every message."""
 
     def __init__(self, path: str | Path) -> None:
         self.path = Path(path)
         self.report = ReadReport(self.path)
+        self._schemas: dict[int, str] = {}
+        self._channels: dict[int, tuple[str, str]] = {}  # id: topic, schema name
+        self._wanted_ids: set[int] | None = None
 
-    def messages(self) -> Iterator[RecordedMessage]:
+    def messages(self, wanted: Callable[[str], bool] | None = None) -> Iterator[RecordedMessage]:
+        return self._read(wanted, metadata_only=False)
+
+    def read_all(self) -> list[RecordedMessage]:
+        return list(self.messages())
+
+    def read_metadata(self) -> dict[str, dict[str, str]]:
+        """The metadata, read up to the first chunk (the recorder writes it before any)."""
+        for _ in self._read(None, metadata_only=True):
+            pass
+        return self.report.metadata
+
+    def _read(
+        self, wanted: Callable[[str], bool] | None, metadata_only: bool
+    ) -> Iterator[RecordedMessage]:
         report = self.report
-        schemas: dict[int, str] = {}
-        channels: dict[int, tuple[str, str]] = {}
+        self._wanted_ids = None if wanted is None else set()
+
+        def wants(channel: ChannelRecord) -> bool:
+            return wanted is None or wanted(channel.topic)
+
         try:
             stream = open(self.path, "rb")  # noqa: SIM115 - closed below
         except OSError as exc:
             report.problems.append(f"cannot open: {exc}")
             return
+        decompressor = new_decompressor()
         with stream:
-            reader = StreamReader(
-                stream,
-                emit_chunks=True,
-                validate_crcs=True,
-                record_size_limit=RECORD_SIZE_LIMIT_BYTES,
-            )
-            records = reader.records
+            records = read_records(stream, RECORD_SIZE_LIMIT_BYTES)
             while True:
                 try:
                     record = next(records)
                 except StopIteration:
                     break
-                except _RECORD_ERRORS as exc:
+                except _READ_ERRORS as exc:
                     report.truncated = True
                     report.problems.append(
                         f"ends after chunk {report.chunks}: {_describe(exc)}; "
                         "read up to the last whole chunk"
                     )
                     break
-                if isinstance(record, Chunk):
+                if isinstance(record, ChunkRecord):
+                    if metadata_only:
+                        return
                     try:
-                        inner = breakup_chunk(record, validate_crc=True)
-                    except _CHUNK_ERRORS as exc:
+                        data = chunk_data(record, decompressor)
+                        contents = split_chunk(data, self._wanted_ids, wants)
+                    except (ChunkError, MemoryError) as exc:
                         report.bad_chunks += 1
                         report.problems.append(
                             f"chunk {report.chunks + report.bad_chunks} skipped: {_describe(exc)}"
                         )
                         continue
                     report.chunks += 1
-                    for item in inner:
-                        message = self._take(item, schemas, channels)
-                        if message is not None:
-                            yield message
-                    continue
-                if isinstance(record, Footer):
+                    yield from self._take_chunk(contents, wants)
+                elif isinstance(record, MessageRecord):
+                    if metadata_only:
+                        return
+                    wanted_here = self._wanted_ids is None or record.channel_id in self._wanted_ids
+                    yield from self._take_chunk(_alone(record, wanted_here), wants)
+                elif isinstance(record, MetadataRecord):
+                    report.metadata[record.name] = record.metadata
+                elif isinstance(record, SchemaRecord | ChannelRecord):
+                    self._define(record, wants)
+                elif isinstance(record, FooterRecord):
                     report.finished = True
-                message = self._take(record, schemas, channels)
-                if message is not None:
-                    yield message
 
-    def read_all(self) -> list[RecordedMessage]:
-        return list(self.messages())
+    def _define(
+        self, record: SchemaRecord | ChannelRecord, wants: Callable[[ChannelRecord], bool]
+    ) -> None:
+        if isinstance(record, SchemaRecord):
+            self._schemas[record.id] = record.name
+            return
+        self._channels[record.id] = (record.topic, self._schemas.get(record.schema_id, ""))
+        if self._wanted_ids is not None and wants(record):
+            self._wanted_ids.add(record.id)
 
-    def _take(
-        self,
-        record: Any,
-        schemas: dict[int, str],
-        channels: dict[int, tuple[str, str]],
-    ) -> RecordedMessage | None:
+    def _take_chunk(
+        self, contents: ChunkContents, wants: Callable[[ChannelRecord], bool]
+    ) -> Iterator[RecordedMessage]:
         report = self.report
-        if isinstance(record, Schema):
-            schemas[record.id] = record.name
-        elif isinstance(record, Channel):
-            channels[record.id] = (record.topic, schemas.get(record.schema_id, ""))
-        elif isinstance(record, Metadata):
-            report.metadata[record.name] = dict(record.metadata)
-        elif isinstance(record, Message):
-            channel = channels.get(record.channel_id)
+        channels = self._channels
+        for definition in contents.definitions:
+            self._define(definition, wants)
+        for channel_id, count in contents.count_by_channel.items():
+            channel = channels.get(channel_id)
             if channel is None:
-                report.problems.append(f"message on unknown channel {record.channel_id}")
-                return None
-            topic, schema = channel
-            report.messages += 1
-            report.per_topic[topic] = report.per_topic.get(topic, 0) + 1
+                report.problems.append(f"{count} message(s) on unknown channel {channel_id}")
+                continue
+            report.messages += count
+            report.per_topic[channel[0]] = report.per_topic.get(channel[0], 0) + count
+        if contents.first_log_time_ns is not None:
             if report.first_log_time_ns is None:
-                report.first_log_time_ns = record.log_time
-            report.last_log_time_ns = record.log_time
-            return RecordedMessage(topic, schema, record.log_time, record.sequence, record.data)
-        return None
+                report.first_log_time_ns = contents.first_log_time_ns
+            report.last_log_time_ns = contents.last_log_time_ns
+        for channel_id, log_time_ns, sequence, data in contents.messages:
+            channel = channels.get(channel_id)
+            if channel is not None:
+                yield RecordedMessage(channel[0], channel[1], log_time_ns, sequence, data)
+
+
+def _alone(message: MessageRecord, wanted: bool) -> ChunkContents:
+    """A message outside any chunk, taken as a chunk of its own: counted, and handed on
+    if it is ``wanted``."""
+    return ChunkContents(
+        [],
+        [message] if wanted else [],
+        {message.channel_id: 1},
+        message.log_time_ns,
+        message.log_time_ns,
+    )
 
 
 def _describe(exc: BaseException) -> str:
@@ -173,9 +214,7 @@ def _describe(exc: BaseException) -> str:
 def session_files(path: Path) -> list[Path]:
     """The files of ``path``'s recording session in its directory, oldest first, up to and
     including ``path``: replay starts where the daemon started its core."""
-    target = RecordingReader(path)
-    _read_metadata(target)
-    session = target.report.session
+    session = read_metadata(path).get("dbw", {}).get("session", "")
     if not session:
         return [path]
     found = []
@@ -183,14 +222,12 @@ def session_files(path: Path) -> list[Path]:
         if candidate.resolve() == path.resolve():
             found.append(path)
             break
-        reader = RecordingReader(candidate)
-        _read_metadata(reader)
-        if reader.report.session == session:
+        if read_metadata(candidate).get("dbw", {}).get("session", "") == session:
             found.append(candidate)
     return found
 
 
-def _read_metadata(reader: RecordingReader) -> None:
-    """Read just far enough to have the metadata (written before any message)."""
-    for _ in reader.messages():
-        break
+def read_metadata(path: Path) -> dict[str, dict[str, str]]:
+    """A recording's metadata (its session, vehicle file, calibration), without reading
+    its messages; empty for a file that has none or is not a recording."""
+    return RecordingReader(path).read_metadata()

@@ -29,7 +29,7 @@ from appliance.cli.record import replay as replay_command
 from appliance.daemon import Daemon, DaemonControlApi
 from appliance.modes import Mode
 from appliance.recording.channels import CYCLE_TOPIC, REQUEST_TOPIC, RESET_TOPIC
-from appliance.recording.reader import RecordingReader, session_files
+from appliance.recording.reader import RecordingReader, read_metadata, session_files
 from appliance.recording.replay import Replayer, core_from_metadata
 from tests.runtime.test_daemon_control import isolated_sim_config
 
@@ -155,6 +155,17 @@ def test_replay_reproduces_every_output_exactly(recording_dir: Path) -> None:
     cli = CliRunner().invoke(replay_command, [str(_files(recording_dir)[-1]), "--compare"])
     assert cli.exit_code == 0, cli.output
     assert "outputs match the recording exactly" in cli.output
+
+
+def test_replay_from_the_files_is_the_replay_of_every_message(recording_dir: Path) -> None:
+    """`feed_file` takes only the topics replay uses, and comes to the same result, over
+    the same time span, as feeding every message."""
+    every = _replay(recording_dir).result
+    files = session_files(_files(recording_dir)[-1])
+    replayer = Replayer(core_from_metadata(read_metadata(files[0])))
+    for path in files:
+        replayer.feed_file(path)
+    assert replayer.result == every
 
 
 def test_a_changed_rule_is_reported_where_it_first_acts(recording_dir: Path) -> None:

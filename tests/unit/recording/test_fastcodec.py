@@ -12,7 +12,8 @@ from hypothesis import strategies as st
 
 from appliance.core.inputs import ControlInputs
 from appliance.recording.codec import CodecError, decode, encode
-from appliance.recording.fastcodec import decode_fast, encode_fast
+from appliance.recording.fastcodec import encode_fast
+from appliance.recording.fastdecode import decode_fast
 from drivers.lms111.mounted import MountedScan
 from tests.unit.recording.test_codec import (
     DECLARED,
