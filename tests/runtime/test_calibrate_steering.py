@@ -14,6 +14,8 @@ from __future__ import annotations
 
 import asyncio
 import math
+import signal
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -24,7 +26,8 @@ from click.testing import CliRunner, Result
 from appliance.cli.main import cli
 from appliance.config import VehicleConfig
 from appliance.config.calibration import Calibration
-from appliance.config.calibration_file import read_calibration_file
+from appliance.config.calibration_file import read_calibration_file, write_calibration
+from appliance.config.simulated_calibration import simulated_calibration
 from appliance.maneuvers import technician
 from appliance.modes import Mode
 from drivers.actuators.steering_model import PotMapping, ServoParams
@@ -233,7 +236,42 @@ async def test_aborts_leave_the_calibration_untouched(tmp_path: Path) -> None:
         assert "went to ERROR (faults: stale:steering.pot)" in result.output
         assert not daemon.core.maneuver.active
         before["draft"] = (tmp_path / "calibration.toml.draft.json").exists()
-    assert not calfile.exists() and before["draft"] is False
+        await until(lambda: not daemon.status_document()["faults"], 10.0, daemon, "fresh")
+        await twins.act("press", button="manual_override")  # the latched fault acknowledged
+        await until(lambda: daemon.core.state.mode is Mode.READY, 10.0, daemon, "READY again")
+        await until(lambda: fixed(daemon), 10.0, daemon, "fresh again")
+
+        # Ctrl-C in a terminal, with an earlier calibration in place: it stays as it was.
+        write_calibration(calfile, simulated_calibration(config.name))
+        earlier = calfile.read_bytes()
+        process = await asyncio.create_subprocess_exec(
+            sys.executable,
+            "-m",
+            "appliance",
+            "calibrate",
+            "pot-map",
+            *common,
+            "--samples",
+            str(tmp_path / "ctrl-c.jsonl"),
+            stdout=asyncio.subprocess.PIPE,
+            stderr=asyncio.subprocess.STDOUT,
+        )
+        await until(
+            lambda: daemon.core.maneuver.active or process.returncode is not None,
+            20.0,
+            daemon,
+            "tapping",
+        )
+        if process.returncode is not None:
+            said, _ = await process.communicate()
+            pytest.fail(f"the command ended before its maneuver began: {said.decode()}")
+        process.send_signal(signal.SIGINT)
+        output, _ = await asyncio.wait_for(process.communicate(), 20.0)
+        text = output.decode()
+        assert process.returncode == 1 and "interrupted" in text, text
+        assert "--resume" in text and calfile.read_bytes() == earlier
+        await until(lambda: not daemon.core.maneuver.active, 5.0, daemon, "tap stopped")
+    assert calfile.read_bytes() == earlier and before["draft"] is False
 
 
 def test_a_bad_samples_file_is_refused_with_a_clear_line(tmp_path: Path) -> None:
