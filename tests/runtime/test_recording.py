@@ -86,6 +86,9 @@ def recording_dir() -> Iterator[Path]:
                 LIVENESS_TIMEOUT_S,
                 "recorder running",
             )
+            # A calibration maneuver's tap over the whole run: its requests are recorded,
+            # and replay taps the same cycles.
+            assert api.maneuver("start", "pot-map")[0]
             # A loaded machine may drop the vehicle out of ENGAGED (an input late for a
             # moment): then the operator acknowledges and does it again. The refusals
             # are recorded and replayed like everything else.
@@ -97,6 +100,9 @@ def recording_dir() -> Iterator[Path]:
             await asyncio.sleep(1.0)
             api.request("disengage")
             await asyncio.sleep(0.5)
+            assert api.maneuver("stop", "pot-map")[0]
+            (directory / "tapped").write_text(str(daemon.core.maneuver.next_seq))
+            await asyncio.sleep(0.2)
         finally:
             daemon.request_stop("test over")
             result = await asyncio.wait_for(run, 10.0)
@@ -151,6 +157,10 @@ def test_replay_reproduces_every_output_exactly(recording_dir: Path) -> None:
     assert result.cycles > 100  # a few seconds at 50 Hz
     assert result.divergent_cycles == 0, [d.describe(0) for d in result.divergences]
     assert result.cycles_skipped == 0  # the recorder had the core's first cycle
+    # The maneuver's tap ran again over the same cycles: as many samples as in the run.
+    replayer = _replay(recording_dir)
+    tapped = int((recording_dir / "tapped").read_text())
+    assert replayer.core.maneuver.next_seq == tapped > 50
 
     cli = CliRunner().invoke(replay_command, [str(_files(recording_dir)[-1]), "--compare"])
     assert cli.exit_code == 0, cli.output
