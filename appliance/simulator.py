@@ -180,7 +180,9 @@ def build_simulator(
     simulator.services.append(twin_service("sim.boards", run_boards, policy))
     gnss = config.devices.gnss
     if gnss is not None and gnss.port == GNSS_SIM_PORT:
-        _add_gnss_twin(simulator, config.positioning, boards.directory, policy)
+        _add_gnss_twin(
+            simulator, config.positioning, boards.directory, policy, config.simulation.gnss_sigma_m
+        )
     return simulator
 
 
@@ -199,16 +201,23 @@ def antenna_truth(
 
 
 def _add_gnss_twin(
-    simulator: Simulator, positioning: Positioning, directory: str, policy: RestartPolicy
+    simulator: Simulator,
+    positioning: Positioning,
+    directory: str,
+    policy: RestartPolicy,
+    sigma_m: float = 0.05,
 ) -> None:
     """The receiver at ``directory``/gnss, sampling the world's true pose at its own rate
     (10 Hz, 5 cm noise: `GnssTwinParams`' clean RTK receiver), in the frame of the config's
     origin so that the daemon's local frame and the world's coincide."""
     origin = positioning.origin
-    params = GnssTwinParams()
+    params = GnssTwinParams(position_noise_m=sigma_m)
     if origin is not None:
         params = GnssTwinParams(
-            origin_lat_deg=origin.lat_deg, origin_lon_deg=origin.lon_deg, origin_alt_m=origin.alt_m
+            origin_lat_deg=origin.lat_deg,
+            origin_lon_deg=origin.lon_deg,
+            origin_alt_m=origin.alt_m,
+            position_noise_m=sigma_m,
         )
     twin = GnssTwin(os.path.join(directory, "gnss"), params, seed=GNSS_TWIN_SEED)
     simulator.gnss_twin = twin

@@ -555,6 +555,9 @@ class Simulation(_Model):
     # Draws each scanner's systematic and mount errors (one vehicle per seed), and its noise.
     scanner_seed: int = Field(1, ge=0, le=2**32 - 1)
     steering: SimSteering = SimSteering()
+    # The simulated GNSS/INS receiver's white position noise per horizontal axis (what
+    # its GST reports): 5 cm, a clean RTK receiver; the calibration figures use 2 cm.
+    gnss_sigma_m: float = Field(0.05, ge=0.0, le=10.0)
 
 
 class VehicleConfig(_Model):
