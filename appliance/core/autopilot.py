@@ -70,6 +70,20 @@ class DockAutopilot:
     def reset(self) -> None:
         self.source.reset()
 
+    def launcher(self) -> dict[str, object]:
+        """The launcher's geometry as the localizer knows it, for the operator page's
+        Fig. 8 view (asked at status time, not every cycle)."""
+        launcher = self.source.localizer.params.launcher
+        return {
+            "front_board_width_m": launcher.front_board_width_m,
+            "side_board_length_m": launcher.side_board_length_m,
+            "side_board_sweep_deg": launcher.side_board_sweep_deg,
+            "cylinders": [
+                {"name": c.name, "x_m": c.x_m, "y_m": c.y_m, "radius_m": c.radius_m}
+                for c in launcher.cylinders
+            ],
+        }
+
     def update(self, observation: Observation) -> AutopilotWish:
         wish = self.source.wish(observation.scans, observation.engaged, observation.now_s)
         return AutopilotWish(

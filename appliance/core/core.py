@@ -350,6 +350,11 @@ class ControlCore:
         nearby = getattr(self.autopilot, "nearby", None)
         if nearby is not None:  # the route source: routes near the vehicle, engageable?
             document["routes_nearby"] = nearby()
+        pilot = document.get("autopilot")
+        for extra, key in (("route_window", "route_window"), ("launcher", "launcher")):
+            method = getattr(self.autopilot, extra, None)
+            if method is not None and isinstance(pilot, dict):  # for the operator page
+                pilot[key] = method()
         maneuver = self.maneuver.status()
         if maneuver is not None:
             document["maneuver"] = maneuver

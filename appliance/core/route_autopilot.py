@@ -40,6 +40,8 @@ from drivers.gnss.sentences import FixQuality
 from drivers.pc104.messages import MotionPattern
 
 NEARBY_LIMIT = 5  # routes listed in the status, nearest first
+WINDOW_RADIUS_M = 30.0  # the operator page's route view is 60 m across
+WINDOW_POINTS = 400
 
 
 def follow_params(config: VehicleConfig) -> RouteFollowParams:
@@ -159,6 +161,22 @@ class RouteAutopilot:
             "route_length_m": None if route is None else round(route.length_m, 1),
             "route_speed_limit_mps": None if route is None else route.speed_limit_mps,
             "selection": self.selection_problem or "ok",
+        }
+
+    def route_window(self, radius_m: float = WINDOW_RADIUS_M) -> dict[str, Any]:
+        """The selected route's points within ``radius_m`` of the vehicle's last pose, in
+        the local east-north frame (the operator page draws them, as Stanley et al.'s
+        GUI did); at most ``WINDOW_POINTS``, evenly thinned. Asked at status time."""
+        pose, follower = self._last_pose, self.follower
+        if pose is None or follower is None:
+            return {"points_m": [], "radius_m": radius_m}
+        points = np.asarray(follower.route_m, dtype=float)
+        near = points[np.hypot(points[:, 0] - pose.x_m, points[:, 1] - pose.y_m) <= radius_m]
+        if len(near) > WINDOW_POINTS:
+            near = near[np.linspace(0, len(near) - 1, WINDOW_POINTS).astype(int)]
+        return {
+            "points_m": [[round(float(e), 3), round(float(n), 3)] for e, n in near],
+            "radius_m": radius_m,
         }
 
     def nearby(self) -> list[dict[str, Any]]:

@@ -162,3 +162,24 @@ def test_nearby_routes_are_listed_nearest_first_with_the_engagement_verdict(tmp_
     assert nearby[0]["engage_allowed"] and math.isclose(float(nearby[0]["distance_m"]), 2.0)
     assert not nearby[1]["engage_allowed"]  # 28 m away
     assert not nearby[2]["engage_allowed"] and nearby[2]["heading_error_deg"] == 90.0
+
+
+def test_the_route_window_holds_the_selected_routes_points_near_the_vehicle(
+    tmp_path: Path,
+) -> None:
+    """For the operator page's route view: the points within the radius of the pose the
+    source last estimated, by an independent distance check; none before a pose."""
+    store_with(tmp_path, "near", straight())
+    source = RouteAutopilot(route_config(tmp_path, selected="near"))
+    assert source.route_window() == {"points_m": [], "radius_m": 30.0}
+    drive_cycles(source, 60.0, 2.0)
+    pose = source._last_pose
+    assert pose is not None
+    window = source.route_window(radius_m=20.0)
+    points = np.asarray(window["points_m"])
+    assert len(points) > 10 and np.all(np.abs(points[:, 1]) < 1e-6)  # on the route (north 0)
+    distances = np.hypot(points[:, 0] - pose.x_m, points[:, 1] - pose.y_m)
+    assert distances.max() <= 20.0 + 1e-9
+    # The route's ends nearest the window: nothing within 20 m was left out.
+    assert points[:, 0].min() <= pose.x_m - 19.0 and points[:, 0].max() >= pose.x_m + 19.0
+    assert len(source.route_window(radius_m=1000.0)["points_m"]) <= 400
