@@ -49,6 +49,7 @@ MAX_PATH_BYTES: Final = 107  # sun_path is 108 bytes including the terminating N
 BEAT_PERIOD_S: Final = 0.1
 STALE_PROBE_TIMEOUT_S: Final = 0.5
 CLOSE_CLIENTS_TIMEOUT_S: Final = 0.3
+BAD_REQUEST_KEPT_BYTES: Final = 256  # of a refused line, for the recording
 _PERMANENT_BIND_ERRNOS: Final = frozenset(
     {errno.EACCES, errno.EPERM, errno.EROFS, errno.ENOTDIR, errno.ENAMETOOLONG}
 )
@@ -360,6 +361,12 @@ class ControlServer:
             request = decode_request(line)
         except RequestError as exc:
             log.info("control_bad_request", error=str(exc), **session.peer.as_log_fields())
+            told = getattr(self.api, "bad_request", None)
+            if told is not None:  # the recorder keeps every input, the refused ones too
+                try:
+                    told(line[:BAD_REQUEST_KEPT_BYTES].decode("utf-8", "replace"), str(exc))
+                except Exception as err:  # a recorder's trouble is no reason to drop a client
+                    log.error("control_bad_request_not_told", error=repr(err), exc_info=err)
             return error_reply(str(exc))
         if isinstance(request, StatusRequest):
             try:

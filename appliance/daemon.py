@@ -526,6 +526,13 @@ class DaemonControlApi:
     def maneuver(self, action: str, step: str) -> tuple[bool, str]:
         return self._daemon.core.maneuver_request(action, step, self._daemon.clock())
 
+    def bad_request(self, line: str, error: str) -> None:
+        """A refused request line, told to the request listeners (the recorder) so a
+        recording holds every input; replay counts it and changes nothing."""
+        now_s = self._daemon.clock()
+        for listener in self._daemon.core.request_listeners:
+            listener("bad_request", line, now_s, False, error)
+
     def samples(self, since: int, limit: int) -> dict[str, Any]:
         return self._daemon.core.maneuver.samples_since(since, limit)
 

@@ -209,6 +209,8 @@ class Replayer:
         data = _json(message)
         self.result.requests += 1
         name, kind = str(data.get("name", "")), data.get("kind")
+        if kind == "bad_request":
+            return  # refused by the socket's parser: it never reached the core
         if kind == "select_route":
             accepted, text = self.core.select_route(name)
         elif kind == "maneuver":

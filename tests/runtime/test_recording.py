@@ -14,6 +14,7 @@ steps the set speed up and hands back. Then, from the files alone:
 from __future__ import annotations
 
 import asyncio
+import json
 import shutil
 import tempfile
 import time
@@ -26,6 +27,7 @@ from click.testing import CliRunner
 
 from appliance.cli.record import record as record_group
 from appliance.cli.record import replay as replay_command
+from appliance.control_client import query
 from appliance.daemon import Daemon, DaemonControlApi
 from appliance.modes import Mode
 from appliance.recording.channels import CYCLE_TOPIC, REQUEST_TOPIC, RESET_TOPIC
@@ -89,6 +91,9 @@ def recording_dir() -> Iterator[Path]:
             # A calibration maneuver's tap over the whole run: its requests are recorded,
             # and replay taps the same cycles.
             assert api.maneuver("start", "pot-map")[0]
+            # A request the socket refuses is an input too: recorded, and changes nothing.
+            refused = await query(str(directory / "control.sock"), {"op": "warp"})
+            assert refused["ok"] is False
             # A loaded machine may drop the vehicle out of ENGAGED (an input late for a
             # moment): then the operator acknowledges and does it again. The refusals
             # are recorded and replayed like everything else.
@@ -131,6 +136,15 @@ def test_the_file_is_complete_with_every_channel_replay_needs(recording_dir: Pat
     for topic in (CYCLE_TOPIC, REQUEST_TOPIC, RESET_TOPIC, "/dbw/topic/scan.left", "/log"):
         assert report.per_topic.get(topic, 0) > 0, (topic, report.per_topic)
     assert report.per_topic[REQUEST_TOPIC] >= 4  # engage, + +, disengage (and any retries)
+    kinds = [
+        json.loads(m.data)
+        for path in files
+        for m in RecordingReader(path).messages()
+        if m.topic == REQUEST_TOPIC
+    ]
+    refused = [k for k in kinds if k.get("kind") == "bad_request"]
+    assert len(refused) == 1 and "unknown op 'warp'" in refused[0]["message"], refused
+    assert '"warp"' in refused[0]["name"]
     assert report.metadata["dbw"]["vehicle"] == "sim"
     assert "toml" in report.metadata["dbw.config"]
 
