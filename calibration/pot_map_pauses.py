@@ -22,10 +22,12 @@ Which side the wheel came from matters because of the coupling's free play: the 
 sits half the play ahead of the wheel in the direction it last moved (behind it, where
 hands turn the wheel and drag the servo). The direction is the sign of the encoder's
 last motion larger than ``approach_rad`` before the pause (so a servo that overshoots
-and comes back counts as coming back), else the sign of the command's change (a wheel
-held at its lock does not move at all), else unknown (``no_direction``). Right after
-the sweep turns back, the servo first crosses the play without moving the wheel: a
-pause that reverses the direction while the pot stays within ``pot_glitch_counts`` of
+and comes back counts as coming back), anywhere before it, not only since its command
+changed (by hand the command is the encoder, each hold a single reading, and a lock the
+pot rails at leaves no rest to compare with); else the sign of the command's change (a
+wheel held at its lock does not move at all), else unknown (``no_direction``). Right
+after the sweep turns back, the servo first crosses the play without moving the wheel:
+a pause that reverses the direction while the pot stays within ``pot_glitch_counts`` of
 the pause before sits inside the play, on neither branch (``in_play``).
 
 A pause where the encoder did not reach its command is *at a lock* (or the servo
@@ -115,7 +117,7 @@ def find_pauses(
         if not good.any():  # no agreement at all: the pot is not steady, every sample off
             continue
         encoder_rad = float(np.median(encoder[span][good]))
-        direction = _approach(encoder[start:first], encoder_rad, p.approach_rad)
+        direction = _approach(encoder[:first], encoder_rad, p.approach_rad)
         if direction == 0:
             direction = int(np.sign(command[start] - last_command))
         last_command = float(command[start])

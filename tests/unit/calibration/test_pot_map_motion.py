@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 
 from calibration.pot_map import PotMapParams, PotMapResult, fit_pot_map
 from calibration.pot_map_motion import Motion, MotionParams, select_motion
-from drivers.actuators.steering_model import ServoParams
+from drivers.actuators.steering_model import PotMapping, ServoParams
 from tests.unit.calibration.synthetic import (
     MAPPING,
     SERVO,
@@ -77,6 +77,21 @@ def test_a_fast_hand_leaves_the_rests_and_the_slow_ends() -> None:
     assert result.verdict.accepted, result.verdict.reasons
     assert result.rejected["too_fast"] > result.motion_samples > 0
     assert map_error_tyre_deg(result) < TARGET_TYRE_DEG
+
+
+def test_by_hand_a_rest_after_a_railed_lock_keeps_its_direction() -> None:
+    """A pot that rails at the locks leaves no rest there: the first rest after one
+    still came from the lock, whatever the rest before it was."""
+    gain = 280.0  # past the ADC's range at both locks
+    mapping = PotMapping(gain_counts_per_rad=gain, cubic_counts_per_rad3=-0.35 * gain / 180.0)
+    sweep = hand_sweep(0, mapping=mapping)
+    result = fit(sweep, mapping.centre_counts)
+    assert result.verdict.accepted, result.verdict.reasons
+    bottom = sweep.t_s[np.argmin(sweep.encoder_wheel_rad[: sweep.t_s.size // 2])]
+    top = sweep.t_s[np.argmax(sweep.encoder_wheel_rad)]
+    for rest in result.pauses:
+        if rest.start_t_s > bottom:
+            assert rest.direction == (1 if rest.start_t_s < top else -1), rest
 
 
 @pytest.mark.parametrize("seed", range(4))
