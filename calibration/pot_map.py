@@ -1,4 +1,4 @@
-"""The steering pot's map: raw counts to steering-wheel angle, as an odd polynomial.
+"""The steering pot's map: raw counts to steering-wheel angle, as a polynomial.
 
 ``wheel_rad = sum(coeffs[i] * d**(i+1))`` with ``d = counts - centre``: no constant term,
 because the centre reading means straight ahead by definition. Evaluating it, its slope
@@ -7,18 +7,28 @@ numpy, shared by the file's validation, the daemon's conversions and every maneu
 measures a map (the pot-map step, and the simulated vehicle's truth fitted the same way).
 
 The pot-map step (Stanley et al., Fig. 17; :func:`fit_pot_map`, or
-:class:`PotMapAccumulator` while the sweep runs): the vehicle stands and the servo turns
-the wheel from full right to full left and back in half turns, pausing after each. The
-pauses, their approach directions, the locks and what is refused on the way are
-:mod:`calibration.pot_map_pauses`; the joint fit of both sweep directions, which gives
-the backlash and the map through the mid-branch points, is
-:mod:`calibration.pot_map_branches`. This module judges the result and turns it into the
-calibration file's values: the polynomial, the centre (the pot-centre step's, given as an
-argument, else the reading at encoder zero) and the valid range, the outermost pauses
-used plus ``valid_margin_counts``. The figure to reach is the map within 0.2° of tyre
-angle over that range; a pause further than half of that from the map
-(``max_residual_tyre_deg``) refuses the fit, since the map between pauses can only be
-worse than at them.
+:class:`PotMapAccumulator` while the sweep runs): the vehicle stands and the wheel is
+turned from full right to full left and back in half turns, resting after each, by the
+servo (``commanded_wheel_rad`` its setpoint) or by hand (nothing commanded: the step
+passes the encoder itself). The rests, their approach directions, the locks and what is
+refused there are :mod:`calibration.pot_map_pauses`. The rests alone leave the map
+loose: half turns give some seven positions each way, too few for the degree the map
+needs near the locks, and it missed the truth by 0.12° of tyre angle between the rests
+of the simulated vehicle's run. So the samples of the turning wheel are used too, once
+the coupling's play is taken up, thinned and gated (:mod:`calibration.pot_map_motion`).
+The joint fit of rests and motion samples, both sweep directions, which gives the
+backlash and the map through the mid-branch points, is :mod:`calibration.pot_map_branches`;
+it allows every power once the motion samples fill the sweep, so a centre a few counts
+off shifts the map by its own error and does not bend it.
+
+This module judges the result and turns it into the calibration file's values: the
+polynomial, the centre (the pot-centre step's, given as an argument, else the reading at
+encoder zero) and the valid range, the outermost rests used plus
+``valid_margin_counts``. The figure to reach is the map within 0.2° of tyre angle over
+that range; a rest, or the mean of any ``residual_group`` neighbouring motion samples of
+one direction, further than half of that from the map (``max_residual_tyre_deg``)
+refuses the fit. The backlash is signed: positive where the encoder leads the wheel (the
+servo turns it), negative where it trails (the hands turn it and drag the servo).
 """
 
 from __future__ import annotations
@@ -32,7 +42,8 @@ import numpy as np
 import numpy.typing as npt
 
 from calibration.fit_checks import BoolArray, FloatArray, Verdict, sample_columns, tally, time_order
-from calibration.pot_map_branches import BranchFit, BranchParams, fit_branches
+from calibration.pot_map_branches import BranchFit, BranchParams, BranchPoints, fit_branches
+from calibration.pot_map_motion import MotionParams, judged_residuals, select_motion
 from calibration.pot_map_pauses import Pause, PauseParams, find_pauses, not_following
 
 # Up to degree 9: the inverse of a pot map with a cubic term near its lock needs it to
@@ -70,13 +81,15 @@ def fit_pot_to_wheel_coeffs(
     return tuple(coeffs)
 
 
-# --- The pot-map maneuver (Fig. 17): from the sweep's pauses to the file's values. ---
+# --- The pot-map maneuver (Fig. 17): from the sweep to the file's values. ---
 
 POT_MAP_METHOD: Final = (
-    "pauses of a stationary half-turn sweep both ways; joint least squares of encoder "
-    "angle on an odd polynomial of pot counts plus half the backlash times the approach "
-    "direction; one round of outlier pauses; degree lowered until monotonic "
-    "(calibration.pot_map)"
+    "rests of a stationary half-turn sweep both ways, and the samples between them once "
+    "the play is taken up (steady, below 3 rad/s, thinned to one per 0.05 rad); least "
+    "squares of encoder angle on a polynomial of pot counts plus half the backlash times "
+    "the direction, rests weighted by their samples; odd powers about the centre unless "
+    "the points fill the sweep; one round of outliers; degree from the positions covered, "
+    "lowered until monotonic (calibration.pot_map)"
 )
 POT_MAP_MIN_SAMPLES: Final = 10
 
@@ -84,12 +97,14 @@ POT_MAP_MIN_SAMPLES: Final = 10
 @dataclass(frozen=True)
 class PotMapParams:
     pauses: PauseParams = field(default_factory=PauseParams)
+    motion: MotionParams = field(default_factory=MotionParams)
     branches: BranchParams = field(default_factory=BranchParams)
     min_pauses_per_direction: int = 4
     # More free play than this is a loose coupling to fix, not a number to calibrate.
     max_backlash_rad: float = 0.15
     max_residual_tyre_deg: float = 0.1  # half the map's 0.2° figure, for what lies between
     min_travel_rad: float = 0.5  # each side of centre: the calibration file's own minimum
+    residual_group: int = 10  # the motion samples' residuals judged as means of this many
 
 
 @dataclass(frozen=True)
@@ -97,18 +112,20 @@ class PotMapResult:
     pot_centre_counts: float | None  # None: no encoder zero inside the measured range
     centre_from: str  # "pot-centre step" or "encoder zero"
     pot_to_wheel_coeffs: tuple[float, ...]  # the file's: coeff[i] for d**(i+1)
-    powers: tuple[int, ...]  # the odd powers fitted (fewer than asked if needed)
+    powers: tuple[int, ...]  # the powers fitted (fewer than asked if the points are few)
+    positions: int  # distinct steering-wheel positions the points used cover
+    motion_samples: int  # samples of the turning wheel used, besides the rests
     pot_valid_min_counts: int
     pot_valid_max_counts: int
     usable_min_counts: float  # the outermost pauses used
     usable_max_counts: float
     lock_at_min: bool  # the range ends at a lock (else: where the sweep turned back)
     lock_at_max: bool
-    backlash_rad: float  # steering-wheel rad between the two sweep directions
+    backlash_rad: float  # the two sweep directions' gap: < 0 if the encoder trails
     backlash_std_error_rad: float
     encoder_at_centre_rad: float  # the encoder's reading with the wheels straight
     monotonic: bool
-    residual_rms_rad: float  # steering-wheel rad, backlash-corrected pauses about the map
+    residual_rms_rad: float  # wheel rad: the rests and binned motion samples about the map
     residual_max_rad: float
     steering_ratio: float
     pauses: tuple[Pause, ...]
@@ -167,31 +184,64 @@ def fit_pot_map(
             POT_MAP_MIN_SAMPLES,
         )
     )
-    found = find_pauses(
-        cols["t_s"],
-        cols["encoder_wheel_rad"],
-        cols["pot_counts"],
-        cols["commanded_wheel_rad"],
-        p.pauses,
-    )
+    t, encoder, pot = cols["t_s"], cols["encoder_wheel_rad"], cols["pot_counts"]
+    found = find_pauses(t, encoder, pot, cols["commanded_wheel_rad"], p.pauses)
     past = not_following(found.pauses, p.pauses.pot_follow_fraction)
     pauses = [replace(q, used=not bad) for q, bad in zip(found.pauses, past, strict=True)]
-    fit = fit_branches(pauses, pot_centre_counts, p.branches)
-    outliers = np.zeros(len(pauses), dtype=np.bool_)
-    if fit is not None:
-        outliers = fit.outliers
-        pauses = [
-            replace(q, used=q.used and not out) for q, out in zip(pauses, outliers, strict=True)
-        ]
-    n = cols["t_s"].size
-    past_samples, outlier_samples = np.zeros(n, np.bool_), np.zeros(n, np.bool_)
-    for (a, b), bad, out in zip(found.spans, past, outliers, strict=True):
-        past_samples[a:b], outlier_samples[a:b] = bad, out and not bad
+    n = t.size
+    in_rest = np.zeros(n, np.bool_)
+    for a, b in found.spans:
+        in_rest[a:b] = True
+    railed = found.refused["pot_out_of_range"]
+    rest_pots = [q.pot_counts for q in pauses if q.used]
+    pot_range = (min(rest_pots), max(rest_pots)) if rest_pots else None
+    motion = select_motion(t, encoder, pot, ~in_rest & ~railed, pot_range, p.motion)
+    points = BranchPoints(
+        pot_counts=np.concatenate([[q.pot_counts for q in pauses], pot[motion.index]]),
+        encoder_rad=np.concatenate([[q.encoder_rad for q in pauses], encoder[motion.index]]),
+        direction=np.concatenate([[float(q.direction) for q in pauses], motion.direction]),
+        weight=np.concatenate([[float(q.samples) for q in pauses], np.ones(motion.index.size)]),
+        used=np.concatenate([[q.used for q in pauses], np.ones(motion.index.size, np.bool_)]),
+    )
+    fit = fit_branches(points, pot_centre_counts, p.branches)
+    outliers = fit.outliers if fit is not None else np.zeros(points.used.size, np.bool_)
+    rests = len(pauses)
+    pauses = [
+        replace(q, used=q.used and not out) for q, out in zip(pauses, outliers[:rests], strict=True)
+    ]
+    past_samples, outlier_rests = np.zeros(n, np.bool_), np.zeros(n, np.bool_)
+    for (a, b), bad, out in zip(found.spans, past, outliers[:rests], strict=True):
+        past_samples[a:b], outlier_rests[a:b] = bad, out and not bad
+    outlier_motion = np.zeros(n, np.bool_)
+    outlier_motion[motion.index[outliers[rests:]]] = True
+    glitch = (found.refused["pot_glitch"] & in_rest) | motion.refused.pop("pot_glitch")
+    past_samples |= motion.refused.pop("past_travel")
     kept, rejected = tally(
         n,
-        [*found.refused.items(), ("past_travel", past_samples), ("outlier_pause", outlier_samples)],
+        [
+            ("pot_out_of_range", railed),
+            ("pot_glitch", glitch),
+            ("past_travel", past_samples),
+            *motion.refused.items(),
+            ("outlier_pause", outlier_rests),
+            ("outlier_motion", outlier_motion),
+        ],
     )
-    return _result(fit, tuple(pauses), pot_centre_counts, steering_ratio, n, kept, rejected, p)
+    judged = np.zeros(0)
+    if fit is not None:
+        k = fit.kept
+        rest = np.arange(k.size) < rests
+        judged = judged_residuals(
+            fit.residuals_rad[k],
+            points.encoder_rad[k],
+            points.direction[k],
+            rest[k],
+            p.residual_group,
+        )
+    moved = int(np.count_nonzero(fit.kept[rests:])) if fit else 0
+    return _result(
+        fit, tuple(pauses), judged, moved, pot_centre_counts, steering_ratio, n, kept, rejected, p
+    )
 
 
 class PotMapAccumulator:
@@ -239,6 +289,8 @@ class PotMapAccumulator:
 def _result(
     fit: BranchFit | None,
     pauses: tuple[Pause, ...],
+    judged_residuals_rad: FloatArray,
+    motion_samples: int,
     given_centre: float | None,
     steering_ratio: float,
     samples: int,
@@ -255,12 +307,22 @@ def _result(
             f"{up} pause(s) sweeping up and {down} down, at least {p.min_pauses_per_direction} "
             "each way needed (the backlash is the gap between the two)"
         )
-    if fit is None:
+    common: dict[str, Any] = {
+        "steering_ratio": steering_ratio,
+        "pauses": pauses,
+        "samples": samples,
+        "accepted": int(np.count_nonzero(kept)),
+        "rejected": rejected,
+        "method": POT_MAP_METHOD,
+    }
+    if fit is None or not used:
         return PotMapResult(
             pot_centre_counts=None,
             centre_from="none",
             pot_to_wheel_coeffs=(),
             powers=(),
+            positions=0,
+            motion_samples=0,
             pot_valid_min_counts=0,
             pot_valid_max_counts=0,
             usable_min_counts=math.nan,
@@ -273,16 +335,13 @@ def _result(
             monotonic=False,
             residual_rms_rad=math.nan,
             residual_max_rad=math.nan,
-            steering_ratio=steering_ratio,
-            pauses=pauses,
-            samples=samples,
-            accepted=int(np.count_nonzero(kept)),
-            rejected=rejected,
-            method=POT_MAP_METHOD,
-            verdict=Verdict.from_reasons([*reasons, "fewer than 4 usable pauses: nothing to fit"]),
+            verdict=Verdict.from_reasons(
+                [*reasons, *(["fewer than 4 usable points: nothing to fit"] if fit is None else [])]
+            ),
+            **common,
         )
-    residual_rms = float(np.sqrt(np.mean(fit.residuals_rad**2)))
-    residual_max = float(np.max(np.abs(fit.residuals_rad)))
+    residual_rms = float(np.sqrt(np.mean(judged_residuals_rad**2)))
+    residual_max = float(np.max(np.abs(judged_residuals_rad)))
     backlash = 2.0 * fit.half_backlash_rad
     low, high = fit.valid_counts
     centre = fit.centre_counts
@@ -302,29 +361,30 @@ def _result(
                     f"valid {name}, at least {p.min_travel_rad} needed: sweep further"
                 )
     if not fit.monotonic:
-        reasons.append("no odd polynomial up to the asked degree is monotonic over the range")
+        reasons.append("no polynomial up to the asked degree is monotonic over the range")
     if abs(backlash) > p.max_backlash_rad:
         reasons.append(
-            f"{backlash:.3f} rad of backlash between the sweep directions, more than "
+            f"{abs(backlash):.3f} rad of backlash between the sweep directions, more than "
             f"{p.max_backlash_rad}: tighten the coupling"
         )
     residual_max_deg = math.degrees(residual_max / steering_ratio)
     if residual_max_deg > p.max_residual_tyre_deg:
         reasons.append(
-            f"a pause lies {residual_max_deg:.3f}° of tyre angle from the map, more than "
-            f"{p.max_residual_tyre_deg}°"
+            f"the map misses a rest or a stretch of the turning wheel by {residual_max_deg:.3f}° "
+            f"of tyre angle, more than {p.max_residual_tyre_deg}°"
         )
-    pots = [q.pot_counts for q in used]
     ends = [min(used, key=lambda q: q.pot_counts), max(used, key=lambda q: q.pot_counts)]
     return PotMapResult(
         pot_centre_counts=centre,
         centre_from="pot-centre step" if given_centre is not None else "encoder zero",
         pot_to_wheel_coeffs=fit.coeffs,
         powers=fit.powers,
+        positions=fit.positions,
+        motion_samples=motion_samples,
         pot_valid_min_counts=low,
         pot_valid_max_counts=high,
-        usable_min_counts=min(pots),
-        usable_max_counts=max(pots),
+        usable_min_counts=ends[0].pot_counts,
+        usable_max_counts=ends[1].pot_counts,
         lock_at_min=ends[0].at_lock,
         lock_at_max=ends[1].at_lock,
         backlash_rad=backlash,
@@ -333,11 +393,6 @@ def _result(
         monotonic=fit.monotonic,
         residual_rms_rad=residual_rms,
         residual_max_rad=residual_max,
-        steering_ratio=steering_ratio,
-        pauses=pauses,
-        samples=samples,
-        accepted=int(np.count_nonzero(kept)),
-        rejected=rejected,
-        method=POT_MAP_METHOD,
         verdict=Verdict.from_reasons(reasons),
+        **common,
     )

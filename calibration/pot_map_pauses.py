@@ -2,28 +2,33 @@
 
 Stanley et al.'s second step (Fig. 17): the vehicle stands, the wheel is turned from full
 right to full left and back in half turns, pausing after each, and the servo's encoder
-and the pot are recorded. Only the pauses are used: while the wheel moves, the pot's
-filter and the sampling lag the encoder by different amounts, and a map fitted through
-moving points bends with the speed of the sweep.
+and the pot are recorded. The pauses (the rests) are the paper's points: each averages
+a second or more of still readings, so they pin the backlash and the map where single
+samples are noisiest. The samples between them, the wheel turning, are judged by
+:mod:`calibration.pot_map_motion`; the reasons below for refusing a sample as part of a
+rest (``moving``, ``short_pause``, ``no_direction``, ``in_play``) hand it on to that
+module, which uses it or refuses it under its own gates.
 
-A pause is a stretch of constant command (a *hold*) whose tail has the encoder still,
-within ``encoder_still_rad`` of where the hold ends. Samples before the tail are the
-servo slewing (``moving``); a tail shorter than ``min_pause_s`` is not long enough for a
-trustworthy median (``short_pause``); a pot sample far from the tail's median is a
-glitch (``pot_glitch``). Each pause gives one point: the encoder's median and the mean
-of the pot's good samples (a mean, because the ADC's whole counts dithered by its noise
-average to a fraction of a count, where a median stays on the whole count: half a count
-is 0.006 rad of wheel near a lock).
+A pause is a stretch of constant command (a *hold*; by hand, the encoder is the command)
+whose tail has the encoder still, within ``encoder_still_rad`` of where the hold ends.
+Samples before the tail are the servo slewing (``moving``); a tail shorter than
+``min_pause_s`` is not long enough for a trustworthy median (``short_pause``); a pot
+sample far from the tail's median is a glitch (``pot_glitch``). Each pause gives one
+point: the encoder's median and the mean of the pot's good samples (a mean, because the
+ADC's whole counts dithered by its noise average to a fraction of a count, where a
+median stays on the whole count: half a count is 0.006 rad of wheel near a lock).
 
 Which side the wheel came from matters because of the coupling's free play: the encoder
-sits half the play ahead of the wheel in the direction it last moved. The direction is
-the sign of the encoder's last motion larger than ``approach_rad`` before the pause
-(so a servo that overshoots and comes back counts as coming back), else the sign of the
-command's change (a wheel held at its lock does not move at all), else unknown
-(``no_direction``). Right after the sweep turns back, the servo first crosses the play
-without moving the wheel: a pause that reverses the direction while the pot stays
-within ``pot_glitch_counts`` of the pause before sits inside the play, on neither
-branch (``in_play``).
+sits half the play ahead of the wheel in the direction it last moved (behind it, where
+hands turn the wheel and drag the servo). The direction is the sign of the encoder's
+last motion larger than ``approach_rad`` before the pause (so a servo that overshoots
+and comes back counts as coming back), anywhere before it, not only since its command
+changed (by hand the command is the encoder, each hold a single reading, and a lock the
+pot rails at leaves no rest to compare with); else the sign of the command's change (a
+wheel held at its lock does not move at all), else unknown (``no_direction``). Right
+after the sweep turns back, the servo first crosses the play without moving the wheel:
+a pause that reverses the direction while the pot stays within ``pot_glitch_counts`` of
+the pause before sits inside the play, on neither branch (``in_play``).
 
 A pause where the encoder did not reach its command is *at a lock* (or the servo
 stalled): still a valid point, since the wheel stands where the pot says and the
@@ -112,7 +117,7 @@ def find_pauses(
         if not good.any():  # no agreement at all: the pot is not steady, every sample off
             continue
         encoder_rad = float(np.median(encoder[span][good]))
-        direction = _approach(encoder[start:first], encoder_rad, p.approach_rad)
+        direction = _approach(encoder[:first], encoder_rad, p.approach_rad)
         if direction == 0:
             direction = int(np.sign(command[start] - last_command))
         last_command = float(command[start])

@@ -393,7 +393,7 @@ def pot_map_report(
     rejected = {**result.rejected, **({"no reading": missing} if missing else {})}
     lines = [
         f"pot map: {sum(1 for p in result.pauses if p.used)} rests used of "
-        f"{len(result.pauses)}, counts "
+        f"{len(result.pauses)} and {result.motion_samples} samples turning, counts "
         f"{result.usable_min_counts:.0f}..{result.usable_max_counts:.0f}"
         f" (valid {result.pot_valid_min_counts}..{result.pot_valid_max_counts})",
         f"  centre {_counts(result.pot_centre_counts)} ({result.centre_from}), backlash "

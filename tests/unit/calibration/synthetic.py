@@ -9,6 +9,7 @@ servo's backlash, the vehicle's throttle and brake response.
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -17,6 +18,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from appliance.sim.vehicle import VehicleCommand, VehicleParams, VehicleState, step
+from calibration.pot_map import PotMapResult, wheel_rad_at
 from drivers.actuators.messages import SteeringMode
 from drivers.actuators.steering_model import (
     PotMapping,
@@ -163,10 +165,73 @@ def pot_sweep(
                 encoder = round((state.motor_rad - encoder_zero_rad) * 1000.0) / 1000.0
                 rows.append((t_s, encoder, counts, float(command) - encoder_zero_rad))
     data = np.asarray(rows).T
-    data[2] = np.clip(np.round(data[2]), 0, 4095)
-    for index in rng.choice(data.shape[1], size=glitches, replace=False):
-        data[2, index] = rng.choice([0.0, 4095.0, data[2, index] + rng.choice([-300.0, 300.0])])
+    data[2] = _pot_readings(data[2], glitches, rng)
     return PotSweep(data[0], data[1], data[2], data[3])
+
+
+def hand_sweep(
+    seed: int,
+    mapping: PotMapping = MAPPING,
+    servo: ServoParams = SERVO,
+    step_rad: float = math.pi,
+    pace_rad_per_s: tuple[float, float] = (1.0, 2.5),
+    pause_s: tuple[float, float] = (1.5, 2.5),
+    tremor_rad: float = 0.002,
+    encoder_zero_rad: float = 0.0,
+    sample_hz: float = 50.0,
+    glitches: int = 0,
+) -> PotSweep:
+    """Fig. 17's maneuver by hand, as the daemon's pot-map step asks for it: from the
+    centre to full right, then half turns (``step_rad``) with rests to full left and
+    back the same way to full right; the ends pushed into the locks.
+
+    A person turns the wheel: each stroke a smooth minimum-jerk move at a peak pace drawn
+    from ``pace_rad_per_s``, each rest drawn from ``pause_s``, a hand's tremor
+    (``tremor_rad`` rms, a tenth of a second's correlation) on top. The released servo's
+    shaft follows the wheel within the backlash (``SteeringTwin._update``: clamped to the
+    hands ± half the play), so the encoder trails the wheel by half the play. Nothing is
+    commanded: the command column is the encoder, as the step feeds it. Encoder, pot and
+    glitches as in :func:`pot_sweep`.
+    """
+    rng = np.random.default_rng(seed)
+    dt_s = 0.01
+    per_sample = round(1.0 / (sample_hz * dt_s))
+    lock, half_play = servo.wheel_limit_rad, servo.backlash_rad / 2.0
+    up = [-lock - 0.3, *np.arange(-lock + step_rad, lock - 1e-9, step_rad), lock + 0.3]
+    stops = [0.0, *up, *up[-2::-1]]
+    motor, tremor = 0.0, 0.0
+    rows: list[tuple[float, float, float]] = []
+    steps = 0
+
+    def hold(target_rad: float) -> None:
+        nonlocal motor, tremor, steps
+        wheel = max(-lock, min(lock, target_rad + tremor))
+        motor = min(max(motor, wheel - half_play), wheel + half_play)
+        steps += 1
+        if steps % per_sample == 0:
+            counts = mapping.ideal_counts(wheel) + rng.normal(0.0, mapping.noise_counts)
+            encoder = round((motor - encoder_zero_rad) * 1000.0) / 1000.0
+            rows.append((steps * dt_s, encoder, counts))
+        tremor += -tremor * dt_s / 0.1 + rng.normal(0.0, tremor_rad * math.sqrt(2 * dt_s / 0.1))
+
+    for start, stop in itertools.pairwise(stops):
+        duration_s = 1.875 * abs(stop - start) / rng.uniform(*pace_rad_per_s)
+        for k in range(1, round(duration_s / dt_s) + 1):
+            tau = min(1.0, k * dt_s / duration_s)
+            hold(start + (stop - start) * tau**3 * (10.0 - 15.0 * tau + 6.0 * tau**2))
+        for _ in range(round(rng.uniform(*pause_s) / dt_s)):
+            hold(stop)
+    data = np.asarray(rows).T
+    data[2] = _pot_readings(data[2], glitches, rng)
+    return PotSweep(data[0], data[1], data[2], data[1].copy())
+
+
+def _pot_readings(counts: FloatArray, glitches: int, rng: np.random.Generator) -> FloatArray:
+    """The ADC's whole counts, ``glitches`` of them a rail reading or a spike."""
+    counts = np.clip(np.round(counts), 0, 4095)
+    for index in rng.choice(counts.size, size=glitches, replace=False):
+        counts[index] = rng.choice([0.0, 4095.0, counts[index] + rng.choice([-300.0, 300.0])])
+    return counts
 
 
 def true_wheel_rad(counts: FloatArray, mapping: PotMapping = MAPPING) -> FloatArray:
@@ -178,6 +243,20 @@ def true_wheel_rad(counts: FloatArray, mapping: PotMapping = MAPPING) -> FloatAr
         slope = mapping.gain_counts_per_rad + 3.0 * mapping.cubic_counts_per_rad3 * wheel**2
         wheel = wheel - error / slope
     return np.asarray(wheel, dtype=np.float64)
+
+
+def map_error_tyre_deg(
+    result: PotMapResult, mapping: PotMapping = MAPPING, relative: bool = False
+) -> float:
+    """Worst error of the fitted map over its usable range; ``relative``: measured from
+    the fit's own centre (what the map adds to whatever error the centre has)."""
+    assert result.pot_centre_counts is not None
+    counts = np.linspace(result.usable_min_counts, result.usable_max_counts, 2001)
+    fitted = wheel_rad_at(result.pot_to_wheel_coeffs, counts - result.pot_centre_counts)
+    truth = true_wheel_rad(counts, mapping)
+    if relative:
+        truth = truth - true_wheel_rad(np.array([result.pot_centre_counts]), mapping)[0]
+    return math.degrees(float(np.max(np.abs(fitted - truth))) / SERVO.steering_ratio)
 
 
 PEDAL_VEHICLE = VehicleParams(**{**HUSKY.__dict__, "max_speed_mps": 10.0})
