@@ -84,7 +84,7 @@ def test_a_resumed_run_fits_as_the_run_it_continues(tmp_path: Path) -> None:
     counts = np.linspace(800.0, 3400.0, 50)
     ours = wheel_rad_at(result.values["steering.pot_to_wheel_coeffs"], counts - 2131.0)
     theirs = wheel_rad_at(other.values["steering.pot_to_wheel_coeffs"], counts - 2131.0)
-    assert np.max(np.abs(np.degrees((ours - theirs) / 18.0))) < 0.1
+    assert np.max(np.abs(np.degrees((ours - theirs) / 18.0))) < 0.05
 
 
 def test_the_sweep_is_complete_only_back_at_full_right_and_resting() -> None:
