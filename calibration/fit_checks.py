@@ -23,6 +23,8 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
+from calibration.fit_inputs import same_length, sample_array
+
 FloatArray = npt.NDArray[np.float64]
 BoolArray = npt.NDArray[np.bool_]
 IntArray = npt.NDArray[np.intp]
@@ -43,29 +45,12 @@ class Verdict:
 
 def sample_columns(columns: Mapping[str, npt.ArrayLike], min_samples: int) -> dict[str, FloatArray]:
     """The named columns as 1-D float arrays of one length, all finite, at least
-    ``min_samples`` long; ValueError (naming the column) otherwise."""
-    arrays: dict[str, FloatArray] = {}
-    length: int | None = None
-    for name, column in columns.items():
-        try:
-            array = np.asarray(column, dtype=np.float64)
-        except (TypeError, ValueError) as error:
-            raise ValueError(f"{name}: not numbers ({error})") from None
-        if array.ndim != 1:
-            raise ValueError(f"{name}: expected a 1-D array, got shape {array.shape}")
-        if length is None:
-            length = array.size
-        elif array.size != length:
-            raise ValueError(f"{name}: {array.size} samples where the others have {length}")
-        bad = np.flatnonzero(~np.isfinite(array))
-        if bad.size:
-            raise ValueError(
-                f"{name}: {bad.size} non-finite value(s), the first at sample {bad[0]} "
-                f"({array[bad[0]]}); a recording with gaps must drop them, not send NaN"
-            )
-        arrays[name] = array
-    if length is None or length < min_samples:
-        raise ValueError(f"too few samples: {length or 0}, the fit needs at least {min_samples}")
+    ``min_samples`` long; ValueError (naming the column) otherwise
+    (:func:`calibration.fit_inputs.sample_array` checks each)."""
+    arrays = {name: sample_array(name, column, min_samples=0) for name, column in columns.items()}
+    length = same_length(arrays) if arrays else 0
+    if length < min_samples:
+        raise ValueError(f"too few samples: {length}, the fit needs at least {min_samples}")
     return arrays
 
 

@@ -212,7 +212,7 @@ def _fit_and_merge(
     if not report.accepted or report.result is None:
         _fail("not accepted: " + "; ".join(report.reasons), EXIT_NOT_ACCEPTED)
     if no_merge:
-        click.echo("accepted; not merged (--no-merge)", err=as_json)
+        click.echo("accepted; the calibration file is left as it is", err=as_json)
         return
     try:
         click.echo(merge_result(config, target, report.result), err=as_json)
@@ -246,6 +246,21 @@ def _step_command(name: str, summary: str, extra_options: tuple[Any, ...]) -> cl
 @click.option("--png", "png_path", metavar="FILE", help="The figure (default: beside FILE).")
 @click.option("--merge", is_flag=True, help="Merge an accepted result into the calibration.")
 @click.option("--json", "as_json", is_flag=True, help="Print the figures as one JSON object.")
+@click.option(
+    "--steering-ratio",
+    "x_steering_ratio",
+    type=click.FloatRange(min=1.0, max=60.0),
+    help="pot-map: where no calibration gives it.",
+)
+@click.option(
+    "--counts-per-tyre-deg", "x_counts_per_tyre_deg", type=float, help="pot-center: likewise."
+)
+@click.option(
+    "--pot-centre-counts",
+    "x_pot_centre_counts",
+    type=click.FloatRange(min=0.0, max=4095.0),
+    help="pot-map: the centre to fit about (default: the calibration's, or the draft's).",
+)
 def fit(
     file: str,
     config_name: str | None,
@@ -253,8 +268,10 @@ def fit(
     png_path: str | None,
     merge: bool,
     as_json: bool,
+    **extra: Any,
 ) -> None:
     """Fit a maneuver's samples FILE again (offline; the daemon is not needed)."""
     config = load_or_exit(config_name)
     target = calibration_path or config.paths.calibration_file
-    _fit_and_merge("", config, Path(file), target, png_path, not merge, {}, as_json)
+    options = {key: value for key, value in extra.items() if value is not None}
+    _fit_and_merge("", config, Path(file), target, png_path, not merge, options, as_json)

@@ -25,6 +25,7 @@ from appliance.config.models import VehicleConfig
 from appliance.maneuvers.merge import StepResult
 from appliance.maneuvers.report import FitReport, item_record
 from appliance.maneuvers.runner import Progress
+from calibration.fit_checks import Verdict
 from calibration.pot_centre import PotCentreAccumulator, PotCentreResult
 from calibration.pot_map import PotMapAccumulator, PotMapCoverage, PotMapResult, wheel_rad_at
 
@@ -55,8 +56,17 @@ def _counts(value: float | None) -> str:
     return "none" if value is None else f"{value:.1f} counts"
 
 
-def verdict_text(accepted: bool, reasons: Sequence[str]) -> str:
-    return "ACCEPTED" if accepted else "REFUSED: " + "; ".join(reasons)
+def tail_lines(
+    taken: int, used: int, rejected: Mapping[str, int], method: str, verdict: Verdict
+) -> list[str]:
+    """What every step's report ends with: the samples' fate, the method, the verdict."""
+    refused = ", ".join(f"{k} {v}" for k, v in rejected.items() if v) or "none"
+    outcome = "ACCEPTED" if verdict.accepted else "REFUSED: " + "; ".join(verdict.reasons)
+    return [
+        f"  samples {taken}: used {used}, rejected {refused}",
+        f"  method: {method}",
+        f"  verdict: {outcome}",
+    ]
 
 
 def _number(sample: Mapping[str, Any], key: str) -> float | None:
@@ -217,11 +227,7 @@ def pot_centre_report(result: PotCentreResult, taken: int, raw_data: str | None)
         f"  spread between stretches {result.spread_tyre_deg:.3f} deg tyre "
         f"(std error {result.standard_error_tyre_deg:.3f} deg), within stretches "
         f"{result.within_segment_std_tyre_deg:.3f} deg",
-        f"  samples {taken}: used {result.accepted}, rejected "
-        + (", ".join(f"{k} {v}" for k, v in rejected.items() if v) or "none"),
-        f"  method: {result.method}",
-        "  verdict: "
-        + ("ACCEPTED" if verdict.accepted else "REFUSED: " + "; ".join(verdict.reasons)),
+        *tail_lines(taken, result.accepted, rejected, result.method, verdict),
     ]
     step_result = None
     if verdict.accepted and centre is not None:
@@ -401,11 +407,7 @@ def pot_map_report(
         f"monotonic {'yes' if result.monotonic else 'NO'}",
         f"  residuals {result.residual_rms_tyre_deg:.3f} deg tyre rms, "
         f"{result.residual_max_tyre_deg:.3f} max",
-        f"  samples {taken}: used {result.accepted}, rejected "
-        + (", ".join(f"{k} {v}" for k, v in rejected.items() if v) or "none"),
-        f"  method: {result.method}",
-        "  verdict: "
-        + ("ACCEPTED" if verdict.accepted else "REFUSED: " + "; ".join(verdict.reasons)),
+        *tail_lines(taken, result.accepted, rejected, result.method, verdict),
     ]
     step_result = None
     if verdict.accepted and result.pot_centre_counts is not None:

@@ -119,11 +119,11 @@ def test_the_accumulator_fills_its_grid_and_fits_as_the_batch_does() -> None:
 @pytest.mark.parametrize(
     ("change", "message"),
     [
-        (lambda c: (c[0], c[1][:-1], c[2], c[3]), "samples where the others have"),
+        (lambda c: (c[0], c[1][:-1], c[2], c[3]), "differ in length"),
         (lambda c: (c[0], c[1], c[2], np.full_like(c[3], np.inf)), "non-finite"),
         (lambda c: tuple(x[:4] for x in c), "too few samples"),
         (lambda c: (c[0] * 0.0, *c[1:]), "two samples at"),
-        (lambda c: (c[0][:, None], *c[1:]), "1-D"),
+        (lambda c: (c[0][:, None], *c[1:]), "one-dimensional"),
     ],
 )
 def test_malformed_input_raises_value_error(

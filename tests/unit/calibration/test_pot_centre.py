@@ -122,12 +122,12 @@ def test_the_accumulator_refuses_nan() -> None:
 @pytest.mark.parametrize(
     ("change", "message"),
     [
-        (lambda c: (c[0][:-1], *c[1:]), "samples where the others have"),
+        (lambda c: (c[0][:-1], *c[1:]), "differ in length"),
         (lambda c: (c[0], np.full_like(c[1], np.nan), *c[2:]), "non-finite"),
-        (lambda c: (c[0].reshape(-1, 2), *c[1:]), "1-D"),
+        (lambda c: (c[0].reshape(-1, 2), *c[1:]), "one-dimensional"),
         (lambda c: tuple(x[:5] for x in c), "too few samples"),
         (lambda c: (np.zeros_like(c[0]), *c[1:]), "two samples at"),
-        (lambda c: (c[0], ["a"] * c[1].size, *c[2:]), "not numbers"),
+        (lambda c: (c[0], ["a"] * c[1].size, *c[2:]), "not an array of numbers"),
     ],
 )
 def test_malformed_input_raises_value_error(

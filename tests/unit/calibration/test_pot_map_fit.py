@@ -152,7 +152,7 @@ def test_the_accumulator_streams_and_fits_as_the_batch_does() -> None:
 @pytest.mark.parametrize(
     ("change", "message"),
     [
-        (lambda c: (c[0], c[1][:-1], c[2], c[3]), "samples where the others have"),
+        (lambda c: (c[0], c[1][:-1], c[2], c[3]), "differ in length"),
         (lambda c: (c[0], c[1], c[2] * np.nan, c[3]), "non-finite"),
         (lambda c: tuple(x[:3] for x in c), "too few samples"),
         (lambda c: (c[0] * 0.0, c[1], c[2], c[3]), "two samples at"),
