@@ -36,6 +36,7 @@ from appliance.config.calibration_file import (
 )
 from appliance.control_client import ControlClient
 from appliance.control_protocol import ControlSocketError
+from appliance.maneuvers.from_recording import RecordingSamplesError, maneuver_samples
 from appliance.maneuvers.merge import MergeError, draft_values, merge_result
 from appliance.maneuvers.report import FitReport
 from appliance.maneuvers.runner import ManeuverRunner, RefusedError
@@ -183,14 +184,9 @@ def _fit_and_merge(
     extra: dict[str, Any],
     as_json: bool = False,
 ) -> None:
-    try:
-        data = read_samples_file(samples, config.name)
-    except SamplesFileError as exc:
-        _fail(str(exc))
-    if data.torn_last_line:
-        click.echo(f"note: {samples}: the last line was cut short and is left out", err=True)
-    step = STEP_CLASSES[data.step](_context(config, target, extra))
-    report: FitReport = step.fit(data.samples, raw_data=str(samples))
+    step_name, taken = _samples(config, samples, step_name or None)
+    step = STEP_CLASSES[step_name](_context(config, target, extra))
+    report: FitReport = step.fit(taken, raw_data=str(samples))
     if as_json:
         click.echo(
             json.dumps(
@@ -220,6 +216,33 @@ def _fit_and_merge(
         _fail(f"accepted but not merged: {exc}")
 
 
+def _samples(
+    config: VehicleConfig, path: Path, step_name: str | None
+) -> tuple[str, list[dict[str, Any]]]:
+    """A step's samples from a samples file, or from a flight recording (``.mcap``: its
+    session replayed, the tap run again over the same cycles; the last run of the step)."""
+    if path.suffix == ".mcap":
+        try:
+            vehicle, run = maneuver_samples(path, step_name)
+        except (RecordingSamplesError, OSError) as exc:
+            _fail(str(exc))
+        if vehicle != config.name:
+            _fail(f"{path}: recorded on vehicle {vehicle!r}, not {config.name!r}")
+        if run.step not in STEP_CLASSES:
+            _fail(f"{path}: no fit for the {run.step} maneuver in this dbw yet")
+        click.echo(f"{path}: the {run.step} run replayed, {len(run.samples)} samples", err=True)
+        return run.step, run.samples
+    try:
+        data = read_samples_file(path, config.name)
+    except SamplesFileError as exc:
+        _fail(str(exc))
+    if data.torn_last_line:
+        click.echo(f"note: {path}: the last line was cut short and is left out", err=True)
+    if step_name is not None and data.step != step_name:
+        _fail(f"{path} holds a {data.step} run, not {step_name}")
+    return data.step, data.samples
+
+
 def add_maneuver_commands(group: click.Group) -> None:
     """Register one command per step, and `fit`, on the `dbw calibrate` group."""
     for name, step_class in STEP_CLASSES.items():
@@ -247,6 +270,12 @@ def _step_command(name: str, summary: str, extra_options: tuple[Any, ...]) -> cl
 @click.option("--merge", is_flag=True, help="Merge an accepted result into the calibration.")
 @click.option("--json", "as_json", is_flag=True, help="Print the figures as one JSON object.")
 @click.option(
+    "--step",
+    "step_name",
+    type=click.Choice(sorted(STEP_CLASSES)),
+    help="Which maneuver (a recording may hold several; default: its last).",
+)
+@click.option(
     "--steering-ratio",
     "x_steering_ratio",
     type=click.FloatRange(min=1.0, max=60.0),
@@ -268,10 +297,14 @@ def fit(
     png_path: str | None,
     merge: bool,
     as_json: bool,
+    step_name: str | None,
     **extra: Any,
 ) -> None:
-    """Fit a maneuver's samples FILE again (offline; the daemon is not needed)."""
+    """Fit a maneuver's samples FILE again (offline; the daemon is not needed). FILE is a
+    samples file, or a flight recording (.mcap) whose maneuver is replayed to get them."""
     config = load_or_exit(config_name)
     target = calibration_path or config.paths.calibration_file
     options = {key: value for key, value in extra.items() if value is not None}
-    _fit_and_merge("", config, Path(file), target, png_path, not merge, options, as_json)
+    _fit_and_merge(
+        step_name or "", config, Path(file), target, png_path, not merge, options, as_json
+    )

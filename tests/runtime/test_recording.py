@@ -286,3 +286,20 @@ def test_record_list_names_the_files_of_the_vehicle(recording_dir: Path, tmp_pat
     for path in _files(recording_dir):
         assert path.name in result.output
     assert "candump" in result.output
+
+
+def test_a_maneuver_is_fitted_from_the_recording_through_replay(recording_dir: Path) -> None:
+    """`dbw calibrate fit RECORDING.mcap`: the tap runs again over the recorded cycles and
+    gives the daemon's samples back (as many); this run was no pot-map sweep (the vehicle
+    drove), so the fit says why it refuses, and a step not in the recording is named."""
+    from appliance.cli.main import cli
+
+    last = str(_files(recording_dir)[-1])
+    tapped = int((recording_dir / "tapped").read_text())
+    common = ["--config", "sim", "--steering-ratio", "18", "--png", str(recording_dir / "f.png")]
+    result = CliRunner().invoke(cli, ["calibrate", "fit", last, *common])
+    assert f"the pot-map run replayed, {tapped} samples" in result.output, result.output
+    assert result.exit_code == 1 and "REFUSED" in result.output, result.output
+    result = CliRunner().invoke(cli, ["calibrate", "fit", last, *common, "--step", "pot-center"])
+    assert result.exit_code == 2
+    assert "no pot-center maneuver in the recording (maneuvers in it: pot-map)" in result.output
