@@ -175,6 +175,10 @@ class ManeuverRunner:
         )
         if not self.confirm(question):
             raise RefusedError("not confirmed by the operator")
+        # The answer may take longer than the daemon keeps an idle connection, and the
+        # vehicle may have changed meanwhile: a new connection, every check again.
+        await self.client.close()
+        await self.check()
         if self.step.moves_vehicle:
             for left in range(COUNTDOWN_S, 0, -1):
                 self.say(f"  starting in {left} ...")

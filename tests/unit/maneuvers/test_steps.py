@@ -22,7 +22,7 @@ from tests.unit.calibration.synthetic import pot_sweep
 
 CONFIG = load_config("husky")
 CONTEXT = StepContext(
-    CONFIG, None, {"x_steering_ratio": 18.0, "x_pot_centre_counts": None, "x_pot_centre": None}
+    CONFIG, None, {"x_steering_ratio": 18.0, "x_pot_centre_counts": None}
 )
 
 

@@ -1,0 +1,104 @@
+"""The runner against a fake daemon: what it asks, in which order, and why it stops.
+
+The fake answers as the control socket does (``status``, ``maneuver``, ``samples``) and
+records every call, so the tests see that the preconditions are checked again after the
+technician's answer (which can take longer than an idle connection lives), that the tap
+is always stopped, and what a refusal says.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import io
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from appliance.config import load_config
+from appliance.maneuvers.runner import ManeuverRunner, RefusedError
+from appliance.maneuvers.samples_file import SamplesWriter, header
+from appliance.maneuvers.steps import PotMapStep, StepContext
+from tests.unit.maneuvers.test_steps import tap_samples
+
+CONFIG = load_config("husky")
+CONTEXT = StepContext(CONFIG, None, {"x_steering_ratio": 18.0})
+FRESH = {"age_s": 0.01, "stale": False}
+
+
+class FakeDaemon:
+    def __init__(self, samples: list[dict[str, Any]]) -> None:
+        self.calls: list[str] = []
+        self.samples = samples
+        self.mode = "ready"
+        self.closed = 0
+
+    def status_doc(self) -> dict[str, Any]:
+        return {
+            "vehicle": CONFIG.name,
+            "mode": self.mode,
+            "faults": [],
+            "measured_speed_mps": 0.0,
+            "inputs": {"board.steering": FRESH, "steering.pot": FRESH},
+            "maneuver": {"step": "pot-map", "active": False, "first_seq": 0},
+        }
+
+    async def status(self) -> dict[str, Any]:
+        self.calls.append("status")
+        return {"ok": True, "status": self.status_doc()}
+
+    async def call(self, request: dict[str, Any]) -> dict[str, Any]:
+        self.calls.append(f"{request['op']}:{request.get('action', request.get('since'))}")
+        if request["op"] == "maneuver":
+            return {"ok": True, "accepted": True, "message": "ok"}
+        since = int(request["since"])
+        chunk = self.samples[since : since + 200]
+        return {
+            "ok": True,
+            "samples": chunk,
+            "next": since + len(chunk),
+            "missed": 0,
+            "active": True,
+        }
+
+    async def close(self) -> None:
+        self.closed += 1
+
+
+def runner(daemon: FakeDaemon, tmp_path: Path, confirm: Any) -> ManeuverRunner:
+    writer = SamplesWriter(tmp_path / "s.jsonl", header("pot-map", CONFIG.name, "0", "x"))
+    return ManeuverRunner(
+        PotMapStep(CONTEXT),
+        daemon,
+        writer,
+        io.StringIO(),
+        timeout_s=60.0,  # type: ignore[arg-type]
+        confirm=confirm,
+    )
+
+
+def test_the_checks_run_again_after_the_answer_and_the_tap_is_stopped(tmp_path: Path) -> None:
+    daemon = FakeDaemon(tap_samples())
+    outcome = asyncio.run(runner(daemon, tmp_path, lambda _q: True).run())
+    assert outcome.complete and outcome.reason == "complete", outcome
+    assert daemon.calls[:3] == ["status", "status", "maneuver:start"]
+    assert daemon.closed == 1 and daemon.calls[-1] == "maneuver:stop"
+
+
+def test_a_change_while_the_technician_answers_refuses_the_start(tmp_path: Path) -> None:
+    daemon = FakeDaemon(tap_samples())
+
+    def engage_meanwhile(_question: str) -> bool:
+        daemon.mode = "engaged"
+        return True
+
+    with pytest.raises(RefusedError, match="ENGAGED"):
+        asyncio.run(runner(daemon, tmp_path, engage_meanwhile).run())
+    assert "maneuver:start" not in daemon.calls
+
+
+def test_no_confirmation_no_start(tmp_path: Path) -> None:
+    daemon = FakeDaemon(tap_samples())
+    with pytest.raises(RefusedError, match="not confirmed"):
+        asyncio.run(runner(daemon, tmp_path, lambda _q: False).run())
+    assert daemon.calls == ["status"]
