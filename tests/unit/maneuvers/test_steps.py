@@ -21,9 +21,7 @@ from calibration.pot_map import wheel_rad_at
 from tests.unit.calibration.synthetic import pot_sweep
 
 CONFIG = load_config("husky")
-CONTEXT = StepContext(
-    CONFIG, None, {"x_steering_ratio": 18.0, "x_pot_centre_counts": None}
-)
+CONTEXT = StepContext(CONFIG, None, {"x_steering_ratio": 18.0, "x_pot_centre_counts": None})
 
 
 def tap_samples(seed: int = 3) -> list[dict[str, Any]]:
