@@ -157,6 +157,7 @@ class Daemon:
         if config.live_view.enabled:
             self.live_view = LiveView(config, time.time_ns() - time.monotonic_ns())
             self.live_view.attach(self.io.topics)
+            self.live_view.route_window = getattr(self.core.autopilot, "route_window", None)
             self.control.on_cycle.append(self.live_view.on_cycle)
         # The flight recorder: every sample, cycle and request, to MCAP (off: None).
         self.recorder: Recorder | None = None

@@ -10,6 +10,9 @@ Log and Raw Messages panels show them with no plug-in:
 - ``/scan/left``, ``/scan/right``: ``foxglove.LaserScan`` in the vehicle frame;
 - ``/dbw/pose``: ``foxglove.PoseInFrame``, the pose the PC104 is given (docking), and
   ``/tf``: ``foxglove.FrameTransform`` launcher -> vehicle, so the scans sit on the map;
+- ``/dbw/gnss_pose``: ``foxglove.PoseInFrame``, the GNSS/INS epoch in the ``enu`` frame,
+  and ``/dbw/route``: ``foxglove.SceneUpdate``, the selected route's points near the
+  vehicle as a line in the same frame (once a second: it changes as the vehicle drives);
 - ``/dbw/status``: JSON: mode, set speed, commands, engage blockers, faults, the wish;
 - ``/log``: ``foxglove.Log``, every note of the core (mode changes, faults) at once.
 """
@@ -20,7 +23,7 @@ import asyncio
 import ipaddress
 import json
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from typing import Any
 
 import foxglove
@@ -30,15 +33,22 @@ from foxglove.channels import (
     LaserScanChannel,
     LogChannel,
     PoseInFrameChannel,
+    SceneUpdateChannel,
 )
 from foxglove.messages import (
+    Color,
     FrameTransform,
     LaserScan,
+    LinePrimitive,
+    LinePrimitiveLineType,
     Log,
     LogLevel,
+    Point3,
     Pose,
     PoseInFrame,
     Quaternion,
+    SceneEntity,
+    SceneUpdate,
     Timestamp,
     Vector3,
 )
@@ -46,6 +56,7 @@ from foxglove.messages import (
 from appliance.config import VehicleConfig
 from appliance.core.inputs import ControlInputs
 from appliance.core.output import CoreOutput, describe_commands
+from appliance.localization.gnss_pose import GnssPose
 from appliance.logs import get_logger
 from appliance.supervisor import ServiceContext
 from appliance.topics import TopicRegistry
@@ -55,6 +66,7 @@ from drivers.topics import Sample
 log = get_logger("live_view")
 
 BEAT_S = 1.0
+ROUTE_RATE_HZ = 1.0  # the route near the vehicle changes only as the vehicle drives
 _LEVELS = {"fault_raised": LogLevel.Error, "fault_cleared": LogLevel.Info}
 STATUS_SCHEMA = {
     "title": "dbw.status",
@@ -130,6 +142,12 @@ class LiveView:
         self.status = Channel(
             "/dbw/status", schema=STATUS_SCHEMA, message_encoding="json", context=self.context
         )
+        self.gnss_pose = PoseInFrameChannel("/dbw/gnss_pose", context=self.context)
+        self.route = SceneUpdateChannel("/dbw/route", context=self.context)
+        self.route_gate = RateGate(ROUTE_RATE_HZ)
+        # The route source's points near the vehicle (``RouteAutopilot.route_window``);
+        # None: the vehicle follows no routes.
+        self.route_window: Callable[[], Mapping[str, Any]] | None = None
 
     # ---- taps (event loop; cheap when nobody watches) -----------------------------------
     def attach(self, topics: TopicRegistry) -> None:
@@ -189,9 +207,49 @@ class LiveView:
                 ),
                 log_time=log_ns,
             )
+        self._gnss_and_route(inputs, now_s, log_ns)
         if self.status.has_sinks() and self.gate.update("/dbw/status", now_s):
             self.status.log(json.dumps(self.status_message(output)), log_time=log_ns)
             self.published += 1
+
+    def _gnss_and_route(self, inputs: ControlInputs, now_s: float, log_ns: int) -> None:
+        gnss = inputs.gnss
+        if (
+            isinstance(gnss, GnssPose)
+            and gnss.yaw_rad is not None
+            and self.gnss_pose.has_sinks()
+            and self.gate.update("/dbw/gnss_pose", now_s)
+        ):
+            self.gnss_pose.log(
+                PoseInFrame(
+                    timestamp=_time(log_ns),
+                    frame_id="enu",
+                    pose=_pose(gnss.east_m, gnss.north_m, gnss.yaw_rad),
+                ),
+                log_time=log_ns,
+            )
+            self.published += 1
+        window = self.route_window
+        if window is None or not self.route.has_sinks():
+            return
+        if not self.route_gate.update("/dbw/route", now_s):
+            return
+        self.route.log(self.route_scene(window(), log_ns), log_time=log_ns)
+        self.published += 1
+
+    @staticmethod
+    def route_scene(window: Mapping[str, Any], log_ns: int) -> SceneUpdate:
+        """The route near the vehicle as one line entity (replacing the last by its id)."""
+        points = [Point3(x=float(e), y=float(n), z=0.0) for e, n in window.get("points_m", [])]
+        line = LinePrimitive(
+            type=LinePrimitiveLineType.LineStrip,
+            thickness=3.0,
+            scale_invariant=True,
+            points=points,
+            color=Color(r=0.43, g=0.30, b=0.25, a=1.0),
+        )
+        entity = SceneEntity(timestamp=_time(log_ns), frame_id="enu", id="route", lines=[line])
+        return SceneUpdate(entities=[entity])
 
     def status_message(self, output: CoreOutput) -> dict[str, Any]:
         return {

@@ -181,3 +181,20 @@ def test_foxglove_sees_the_channels_and_the_mode_no_faster_than_the_rate() -> No
     assert 9 <= len(messages) <= 11  # 10 Hz of a 100 Hz loop
     assert all(m["mode"] in {"boot", "self_check"} for m in messages)
     assert messages[-1]["commands"]["steering"] == "released"
+
+
+def test_the_route_near_the_vehicle_is_a_line_in_the_enu_frame() -> None:
+    """The route source's window becomes one SceneUpdate entity (id ``route``, replaced on
+    each update) in the ``enu`` frame, its points in order: read from the message's own
+    protobuf encoding (the SDK's objects expose no fields), where each coordinate is a
+    little-endian double."""
+    points = [[1.0, 2.0], [3.5, 4.0], [6.0, 6.5]]
+    encoded = LiveView.route_scene({"points_m": points}, 12).encode()
+    assert b"enu" in encoded and b"route" in encoded
+    at = [encoded.index(struct.pack("<d", value)) for point in points for value in point[1:]]
+    assert at == sorted(at)  # the points in the route's order
+    for east, _ in points[1:]:
+        assert struct.pack("<d", east) in encoded
+    assert b"route" in LiveView.route_scene({"points_m": []}, 12).encode()
+    view = LiveView(_live_view_config(free_port()), 0)
+    assert view.route.topic() == "/dbw/route" and view.gnss_pose.topic() == "/dbw/gnss_pose"
