@@ -13,6 +13,7 @@ layer has nothing to refuse.
 from __future__ import annotations
 
 import math
+from abc import ABC, abstractmethod
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, ClassVar
@@ -79,7 +80,7 @@ def _speed(sample: Mapping[str, Any]) -> float | None:
     return speed if speed is not None else _number(sample, "gnss_speed_mps")
 
 
-class HandStep:
+class HandStep(ABC):
     """What the steps done by hand share: they end if the operator engages."""
 
     name: ClassVar[str]
@@ -94,8 +95,9 @@ class HandStep:
         self.context = context
         self.reset()
 
+    @abstractmethod
     def reset(self) -> None:
-        pass
+        """Forget every sample taken (a fit starts from this too)."""
 
     def preconditions(self, status: Mapping[str, Any]) -> list[str]:
         problems = []
@@ -119,8 +121,10 @@ class HandStep:
             return "the operator engaged: a maneuver by hand runs with the autopilot off"
         return self.take(sample)
 
+    @abstractmethod
     def take(self, sample: Mapping[str, Any]) -> str | None:
-        raise NotImplementedError
+        """Take one sample as the step needs it (the engaged check done); a text ends
+        the run."""
 
     def steering_ratio(self) -> float:
         ratio = self.context.options.get("x_steering_ratio")
