@@ -57,6 +57,12 @@ def _counts(value: float | None) -> str:
     return "none" if value is None else f"{value:.1f} counts"
 
 
+def with_unread(rejected: Mapping[str, int], taken: int, fitted: int) -> dict[str, int]:
+    """The fit's rejections, plus the tapped samples that never reached it (no reading)."""
+    missing = taken - fitted
+    return {**rejected, **({"no reading": missing} if missing else {})}
+
+
 def tail_lines(
     taken: int, used: int, rejected: Mapping[str, int], method: str, verdict: Verdict
 ) -> list[str]:
@@ -222,8 +228,7 @@ class PotCentreStep(HandStep):
 
 def pot_centre_report(result: PotCentreResult, taken: int, raw_data: str | None) -> FitReport:
     verdict = result.verdict
-    missing = taken - result.samples
-    rejected = {**result.rejected, **({"no reading": missing} if missing else {})}
+    rejected = with_unread(result.rejected, taken, result.samples)
     centre = result.centre_counts
     lines = [
         f"pot centre: {'none found' if centre is None else f'{centre:.1f} counts'} "
@@ -399,8 +404,7 @@ def pot_map_report(
     result: PotMapResult, taken: int, raw_data: str | None, steering_ratio: float
 ) -> FitReport:
     verdict = result.verdict
-    missing = taken - result.samples
-    rejected = {**result.rejected, **({"no reading": missing} if missing else {})}
+    rejected = with_unread(result.rejected, taken, result.samples)
     lines = [
         f"pot map: {sum(1 for p in result.pauses if p.used)} rests used of "
         f"{len(result.pauses)} and {result.motion_samples} samples turning, counts "
