@@ -145,8 +145,8 @@ class ControlCore:
         self.system_health = parts.system_health_params(config)
         # Told of every request and route selection, with the answer (the recorder).
         self.request_listeners: list[RequestListener] = []
-        # The calibration maneuvers' tap: kept across a core restart (the client sees the
-        # mode fall back to BOOT in the samples and aborts on it).
+        # The calibration maneuvers' tap: kept across a core restart (it only reads; the
+        # samples show the mode the core restarted in, and a fault on the way ends a run).
         self.maneuver = ManeuverTap()
         self.reset()
 
