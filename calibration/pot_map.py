@@ -52,7 +52,17 @@ MAX_POT_TO_WHEEL_COEFFS = 9
 
 
 def wheel_rad_at(coeffs: Sequence[float], offset_counts: Any) -> Any:
-    """``sum(coeffs[i] * d**(i+1))`` for ``d = offset_counts`` (a float or an array)."""
+    """``sum(coeffs[i] * d**(i+1))`` for ``d = offset_counts`` (a float or an array).
+
+    A plain float goes through Horner's rule in Python, in the same order as numpy's
+    ``polyval`` (so to the same bit): the control cycle inverts the map by bisection,
+    sixty evaluations a cycle, and ``polyval`` on a scalar costs several microseconds each.
+    """
+    if isinstance(offset_counts, float | int):
+        value = 0.0
+        for coeff in reversed(coeffs):
+            value = coeff + value * offset_counts
+        return value * offset_counts
     return np.polynomial.polynomial.polyval(offset_counts, (0.0, *coeffs))
 
 

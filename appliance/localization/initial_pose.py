@@ -18,7 +18,6 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.stats import chi2
 
 from appliance.localization.compound import wrap_angle_rad
 from appliance.localization.launcher_map import LauncherMap
@@ -179,7 +178,7 @@ def initial_pose(
     if any(r.startswith("ambiguous") for r in reasons.values()):
         return InitialPoseRefusal("ambiguous: more than one board-sized line")
     poses = list(answers.values())
-    gate = float(chi2.ppf(params.agree_probability, 3))
+    gate = chi2_3dof_quantile(params.agree_probability)
     for other in poses[1:]:
         gap = other[0] - poses[0][0]
         gap[2] = wrap_angle_rad(float(gap[2]))
@@ -199,3 +198,33 @@ def initial_pose(
     covariance = 0.5 * (covariance + covariance.T)
     pose = Pose2D(float(mean[0]), float(mean[1]), wrap_angle_rad(float(mean[2])))
     return InitialPose(pose, covariance, tuple(sorted(answers)))
+
+
+def chi2_3dof_cdf(x: float) -> float:
+    """The chi-square CDF with 3 degrees of freedom, in closed form: what a pose's
+    (x, y, heading) Mahalanobis distance is compared with."""
+    if x <= 0.0:
+        return 0.0
+    return math.erf(math.sqrt(x / 2.0)) - math.sqrt(2.0 * x / math.pi) * math.exp(-x / 2.0)
+
+
+def chi2_3dof_quantile(probability: float) -> float:
+    """The gate for a probability, by bisection on the closed-form CDF.
+
+    Why not ``scipy.stats.chi2.ppf``: importing ``scipy.stats`` costs more than half a
+    second, paid by every ``dbw`` command and every daemon start for one number.
+    """
+    if not 0.0 < probability < 1.0:
+        raise ValueError(f"a probability strictly between 0 and 1, not {probability}")
+    low, high = 0.0, 1.0
+    while chi2_3dof_cdf(high) < probability:
+        high *= 2.0
+    for _ in range(200):
+        middle = 0.5 * (low + high)
+        if chi2_3dof_cdf(middle) < probability:
+            low = middle
+        else:
+            high = middle
+        if high - low <= 1e-12 * high:
+            break
+    return 0.5 * (low + high)
