@@ -41,10 +41,13 @@ def pot_map_schedule(
     pause_s: float = 2.0,
     rate_rad_per_s: float = 1.5,
     step_s: float = 0.05,
+    final_rest_s: float = 2.0,
 ) -> list[Pose]:
     """Stanley et al., Fig. 17: from the centre to full right, then half turns with
     pauses to full left, and back the same way to full right; then the centre, hands off.
-    Right is negative (left positive, as everywhere in dbw)."""
+    Right is negative (left positive, as everywhere in dbw). The rest back at full right
+    is at least ``final_rest_s``, as the command's instructions ask: it is how the
+    command knows the sweep is over."""
     stops = [-lock_rad]
     while stops[-1] + half_turn_rad < lock_rad - 1e-9:
         stops.append(stops[-1] + half_turn_rad)
@@ -52,10 +55,9 @@ def pot_map_schedule(
     stops += stops[-2::-1]  # back to full right through the same stops
     poses: list[Pose] = []
     t_s, wheel = 0.0, 0.0
-    for stop in [*stops, 0.0]:
-        t_s, wheel = _ramp(poses, t_s, wheel, stop, rate_rad_per_s, step_s)
-        poses.append(Pose(t_s, wheel))
-        t_s += pause_s
+    for number, stop in enumerate([*stops, 0.0]):
+        t_s, wheel = _ramp(poses, t_s, wheel, stop, rate_rad_per_s, step_s)  # ends at stop
+        t_s += max(pause_s, final_rest_s) if number == len(stops) - 1 else pause_s
     poses.append(Pose(t_s, None))
     return poses
 

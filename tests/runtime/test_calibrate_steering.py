@@ -125,7 +125,11 @@ async def test_pot_centre_then_pot_map_recover_the_hidden_installation(tmp_path:
                 "150",
             )
         )
-        result = await acted_out(command, twins.path, technician.straight_legs_schedule(4))
+        result = await acted_out(
+            command,
+            twins.path,
+            technician.straight_legs_schedule(4, leg_s=10.0, turn_s=4.0, throttle_pct=50.0),
+        )
         print(result.output)
         assert result.exit_code == 0, result.output
         assert "kept in the draft" in result.output and not calfile.exists()
@@ -151,7 +155,9 @@ async def test_pot_centre_then_pot_map_recover_the_hidden_installation(tmp_path:
             )
         )
         await tapping(command, daemon)
-        schedule = technician.pot_map_schedule(SERVO.wheel_limit_rad, pause_s=1.5)
+        schedule = technician.pot_map_schedule(
+            SERVO.wheel_limit_rad, pause_s=1.0, rate_rad_per_s=2.5
+        )
         result = await acted_out(command, twins.path, schedule)
         print(result.output)
         assert result.exit_code == 0, result.output

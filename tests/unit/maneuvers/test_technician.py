@@ -1,0 +1,49 @@
+"""The simulated technician's schedules do what the commands' instructions ask."""
+
+from __future__ import annotations
+
+import itertools
+
+import pytest
+
+from appliance.maneuvers.technician import Pose, pot_map_schedule, straight_legs_schedule
+
+LOCK_RAD = 9.42
+
+
+def rests(poses: list[Pose], step_s: float = 0.05) -> list[tuple[float, float]]:
+    """(wheel angle, seconds held) for every pose held longer than one step of a turn."""
+    return [
+        (pose.wheel_rad, after.t_s - pose.t_s)
+        for pose, after in itertools.pairwise(poses)
+        if pose.wheel_rad is not None and after.t_s - pose.t_s > 1.5 * step_s
+    ]
+
+
+@pytest.mark.parametrize(("pause_s", "rate"), [(2.0, 1.5), (1.0, 2.5), (0.5, 3.0)])
+def test_the_pot_map_sweep_rests_at_every_half_turn_and_ends_resting_at_full_right(
+    pause_s: float, rate: float
+) -> None:
+    poses = pot_map_schedule(LOCK_RAD, pause_s=pause_s, rate_rad_per_s=rate)
+    held = rests(poses)
+    stops = [wheel for wheel, _ in held]
+    assert stops[0] == -LOCK_RAD and LOCK_RAD in stops and stops[-1] == 0.0
+    assert all(s_ >= pause_s - 1e-9 for _, s_ in held)
+    # The last rest at full right lasts what the instructions ask (2 s), whatever the pause.
+    last_right = max(i for i, (wheel, _) in enumerate(held) if wheel == -LOCK_RAD)
+    assert last_right > 0 and held[last_right][1] >= 2.0 - 1e-9
+    # Never faster than asked, and hands off at the end.
+    for before, after in itertools.pairwise(poses):
+        if before.wheel_rad is not None and after.wheel_rad is not None:
+            pace = abs(after.wheel_rad - before.wheel_rad) / (after.t_s - before.t_s)
+            assert pace <= rate + 1e-6
+    assert poses[-1].wheel_rad is None
+
+
+def test_the_straight_legs_drive_then_brake_and_let_go() -> None:
+    poses = straight_legs_schedule(3, leg_s=10.0, turn_s=4.0, throttle_pct=50.0)
+    assert poses[-1] == Pose(poses[-1].t_s, None, 0.0, 0.0)
+    assert poses[-2].brake_pct > 0.0 and poses[-2].throttle_pct == 0.0
+    driving = poses[:-2]
+    assert all(p.throttle_pct == 50.0 for p in driving)
+    assert poses[-2].t_s == pytest.approx(3 * 10.0 + 2 * 4.0)
