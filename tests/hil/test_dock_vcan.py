@@ -290,6 +290,7 @@ def test_a_docking_approach_over_vcan(vcan_channel: str, tmp_path: Path) -> None
     config = load_config("flatbed-sim")
     truth = Pose2D(world["x_m"], world["y_m"], world["platform_yaw_rad"])
     assert teeth_inside(truth, DockingParams(front_end_forward_m=config.geometry.length_m / 2))
+    assert abs(math.degrees(world["platform_yaw_rad"])) < 0.3, world
     assert phases[0] == "heading" and phases[-1] == "docked", phases
 
     # The bus, read independently of the daemon's code.
