@@ -38,6 +38,7 @@ from appliance.control_client import ControlClient
 from appliance.control_protocol import ControlSocketError
 from appliance.maneuvers.from_recording import RecordingSamplesError, maneuver_samples
 from appliance.maneuvers.merge import MergeError, draft_values, merge_result
+from appliance.maneuvers.registry import STEP_CLASSES
 from appliance.maneuvers.report import FitReport
 from appliance.maneuvers.runner import ManeuverRunner, RefusedError
 from appliance.maneuvers.samples_file import (
@@ -46,7 +47,7 @@ from appliance.maneuvers.samples_file import (
     header,
     read_samples_file,
 )
-from appliance.maneuvers.steps import STEP_CLASSES, StepContext
+from appliance.maneuvers.steps import StepContext
 
 EXIT_NOT_ACCEPTED = 1
 
@@ -211,9 +212,18 @@ def _fit_and_merge(
         click.echo("accepted; the calibration file is left as it is", err=as_json)
         return
     try:
-        click.echo(merge_result(config, target, report.result), err=as_json)
+        said = merge_result(config, target, report.result)
     except (MergeError, OSError, ValueError) as exc:
         _fail(f"accepted but not merged: {exc}")
+    click.echo(said, err=as_json)
+    if said.endswith(" merged"):
+        # The daemon reads its calibration once, at start: the next step (the palm tree
+        # after the pot map) must not run on the old one.
+        click.echo(
+            "the running daemon keeps the calibration it started with: restart it "
+            "(sudo systemctl restart dbw) before the next step or drive",
+            err=as_json,
+        )
 
 
 def _samples(

@@ -52,6 +52,7 @@ from calibration.pot_map import (
 SCHEMA_VERSION: Final = 1
 POT_FULL_SCALE_COUNTS = 4095  # 12-bit ADC
 MONOTONIC_CHECK_POINTS = 512
+MAX_WHEEL_TO_TYRE_COEFFS = 7
 # A steering wheel turns between half a radian and about five turns from centre to lock.
 MIN_WHEEL_TRAVEL_RAD = 0.5
 MAX_WHEEL_TRAVEL_RAD = 30.0
@@ -84,6 +85,38 @@ class SteeringCalibration(_Model):
     pot_valid_min_counts: Counts
     pot_valid_max_counts: Counts
     steering_ratio: float = Field(gt=1.0, le=60.0)  # steering-wheel rad per tyre rad
+    # The palm tree's map (Stanley et al., Fig. 19): tyre_rad = sum(c[i] * wheel**(i+1)).
+    # Absent: the constant ratio above. Present: it rules, and steering_ratio is its slope
+    # at straight ahead (1 / c[0]), kept for what reads only the ratio.
+    wheel_to_tyre_coeffs: tuple[FiniteFloat, ...] | None = Field(
+        None, min_length=1, max_length=MAX_WHEEL_TO_TYRE_COEFFS
+    )
+
+    @model_validator(mode="after")
+    def _tyre_map_is_usable(self) -> Self:
+        coeffs = self.wheel_to_tyre_coeffs
+        if coeffs is None:
+            return self
+        if not coeffs[0] > 0.0 or abs(self.steering_ratio * coeffs[0] - 1.0) > 1e-3:
+            raise ValueError(
+                f"wheel_to_tyre_coeffs[0] ({coeffs[0]:.6g} tyre rad per wheel rad) must be "
+                f"1 / steering_ratio ({1.0 / self.steering_ratio:.6g}): the ratio is the "
+                "map's slope at straight ahead"
+            )
+        with np.errstate(all="ignore"):
+            ends = [
+                float(wheel_rad_at(self.pot_to_wheel_coeffs, c - self.pot_centre_counts))
+                for c in (self.pot_valid_min_counts, self.pot_valid_max_counts)
+            ]
+            wheel = np.linspace(min(ends), max(ends), MONOTONIC_CHECK_POINTS)
+            slope = wheel_slope_rad_per_count(coeffs, wheel)  # same polynomial form
+        if not np.all(slope > 0.0):
+            raise ValueError(
+                "wheel_to_tyre_coeffs is not strictly increasing over the pot's valid range "
+                f"({min(ends):.2f}..{max(ends):.2f} rad of wheel): one tyre angle would need "
+                "two wheel angles"
+            )
+        return self
 
     @model_validator(mode="after")
     def _map_is_usable(self) -> Self:
@@ -212,6 +245,7 @@ class Calibration:
     pot_valid_min_counts: int
     pot_valid_max_counts: int
     steering_ratio: float
+    wheel_to_tyre_coeffs: tuple[float, ...] | None = None
     counter_steer_k_ratio: float | None = None
     guidance_look_ahead_m: float | None = None
     scanners: ScannersCalibration | None = None
@@ -228,6 +262,11 @@ class Calibration:
             pot_valid_min_counts=steering.pot_valid_min_counts,
             pot_valid_max_counts=steering.pot_valid_max_counts,
             steering_ratio=steering.steering_ratio,
+            wheel_to_tyre_coeffs=(
+                None
+                if steering.wheel_to_tyre_coeffs is None
+                else tuple(float(c) for c in steering.wheel_to_tyre_coeffs)
+            ),
             counter_steer_k_ratio=model.counter_steer.k_ratio if model.counter_steer else None,
             guidance_look_ahead_m=model.guidance.look_ahead_m if model.guidance else None,
             scanners=model.scanners,
@@ -253,7 +292,39 @@ class Calibration:
 
     def tyre_rad_from_counts(self, counts: float) -> float | None:
         wheel_rad = self.wheel_rad_from_counts(counts)
-        return None if wheel_rad is None else wheel_rad / self.steering_ratio
+        return None if wheel_rad is None else self.tyre_rad_from_wheel(wheel_rad)
+
+    def tyre_rad_from_wheel(self, wheel_rad: float) -> float:
+        """Front tyre angle: the palm tree's map where there is one, else the ratio."""
+        if self.wheel_to_tyre_coeffs is None:
+            return wheel_rad / self.steering_ratio
+        return float(wheel_rad_at(self.wheel_to_tyre_coeffs, wheel_rad))
+
+    def wheel_rad_from_tyre(self, tyre_rad: float) -> float:
+        """The wheel angle that gives ``tyre_rad``: what the servo is aimed at.
+
+        With a map: bisection over the valid wheel range (the file's validation makes the
+        map increasing there), and beyond it the map's end slope, so a wish past the lock
+        still points the right way and the servo's own limits stop it.
+        """
+        coeffs = self.wheel_to_tyre_coeffs
+        if coeffs is None:
+            return tyre_rad * self.steering_ratio
+        low, high = self.valid_wheel_range_rad
+        tyre_low, tyre_high = self.tyre_rad_from_wheel(low), self.tyre_rad_from_wheel(high)
+        if tyre_rad <= tyre_low:
+            slope = float(wheel_slope_rad_per_count(coeffs, np.array([low]))[0])
+            return low + (tyre_rad - tyre_low) / slope
+        if tyre_rad >= tyre_high:
+            slope = float(wheel_slope_rad_per_count(coeffs, np.array([high]))[0])
+            return high + (tyre_rad - tyre_high) / slope
+        for _ in range(50):  # 30 rad / 2**50: far below a servo tick
+            middle = 0.5 * (low + high)
+            if self.tyre_rad_from_wheel(middle) < tyre_rad:
+                low = middle
+            else:
+                high = middle
+        return 0.5 * (low + high)
 
     @property
     def valid_wheel_range_rad(self) -> tuple[float, float]:
@@ -267,7 +338,7 @@ class Calibration:
     @property
     def valid_tyre_range_rad(self) -> tuple[float, float]:
         low, high = self.valid_wheel_range_rad
-        return low / self.steering_ratio, high / self.steering_ratio
+        return self.tyre_rad_from_wheel(low), self.tyre_rad_from_wheel(high)
 
     def counts_from_wheel_rad(self, wheel_rad: float) -> float:
         """The reading that means ``wheel_rad``: bisection, which the validated monotonic map

@@ -532,6 +532,11 @@ class SimSteering(_Model):
     # The servo's relative encoder reads this much less than the wheel's angle.
     encoder_offset_rad: float = Field(0.0, ge=-100.0, le=100.0)
     pot_seed: int = Field(0, ge=0, le=2**32 - 1)
+    # The linkage's departure from the constant steering ratio at the lock (the palm tree
+    # measures it): tyre = wheel / ratio * (1 + linkage_cubic * (wheel / lock)**2).
+    linkage_cubic: float = Field(0.0, ge=-0.3, le=0.3)
+    # The true rear/front counter-steer ratio; None: the vehicle file's geometry value.
+    counter_steer_ratio_k: float | None = Field(None, ge=0.0, le=1.0)
 
 
 class Simulation(_Model):

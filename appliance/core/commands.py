@@ -259,7 +259,7 @@ class CommandPaths:
         ):
             return SteeringCommand(SteeringMode.RELEASE)
         # The servo's encoder is relative: aim it by the remaining error the pot sees.
-        target_wheel_rad = steer_rad * calibration.steering_ratio
+        target_wheel_rad = calibration.wheel_rad_from_tyre(steer_rad)
         setpoint = m.servo_position_rad + (target_wheel_rad - m.steer_wheel_rad)
         return SteeringCommand(SteeringMode.POSITION, wheel_angle_setpoint_rad=setpoint)
 

@@ -1,11 +1,11 @@
-"""The steering steps done by hand: pot centre and pot map (Stanley et al., Fig. 17).
+"""The steps done by hand: what they share (HandStep), and the pot centre.
 
 Each step is the glue between the daemon's tapped samples and a pure fit in
 ``calibration/``: which samples it needs fresh, what the technician is told, what breaks
 the maneuver (moving during a stationary step), how complete the coverage is, and how the
 fit's numbers become the calibration file's. The fits decide; the steps only translate.
 
-Both steps watch and never command: the technician turns the wheel and drives, the daemon
+The steps by hand watch and never command: the technician turns the wheel and drives, the daemon
 stays out of automatic modes (engaging during a hand maneuver aborts it), so the safety
 layer has nothing to refuse.
 """
@@ -19,7 +19,6 @@ from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
 import click
-import numpy as np
 
 from appliance.config.calibration import CalibrationFile
 from appliance.config.models import VehicleConfig
@@ -28,7 +27,7 @@ from appliance.maneuvers.report import FitReport, item_record
 from appliance.maneuvers.runner import Progress
 from calibration.fit_checks import Verdict
 from calibration.pot_centre import PotCentreAccumulator, PotCentreResult
-from calibration.pot_map import PotMapAccumulator, PotMapCoverage, PotMapResult, wheel_rad_at
+from calibration.pot_map import wheel_rad_at
 
 BAR_WIDTH = 20
 # A stationary step: faster than this for longer than MOVING_S, the vehicle is moving.
@@ -36,9 +35,6 @@ BAR_WIDTH = 20
 STILL_MPS = 0.3
 MOVING_S = 1.0
 MAX_FIX_AGE_S = 0.5
-STILL_WHEEL_RAD = 0.01  # the wheel resting: the encoder moves less than this
-LOCK_TOLERANCE_RAD = 0.3  # back at the lock the sweep started from
-FINAL_REST_S = 1.0
 
 
 @dataclass(frozen=True)
@@ -53,7 +49,7 @@ def bar(fraction: float) -> str:
     return "#" * filled + "." * (BAR_WIDTH - filled)
 
 
-def _counts(value: float | None) -> str:
+def counts_text(value: float | None) -> str:
     return "none" if value is None else f"{value:.1f} counts"
 
 
@@ -76,14 +72,14 @@ def tail_lines(
     ]
 
 
-def _number(sample: Mapping[str, Any], key: str) -> float | None:
+def sample_number(sample: Mapping[str, Any], key: str) -> float | None:
     value = sample.get(key)
     return float(value) if isinstance(value, int | float) and math.isfinite(value) else None
 
 
-def _speed(sample: Mapping[str, Any]) -> float | None:
-    speed = _number(sample, "speed_mps")
-    return speed if speed is not None else _number(sample, "gnss_speed_mps")
+def sample_speed(sample: Mapping[str, Any]) -> float | None:
+    speed = sample_number(sample, "speed_mps")
+    return speed if speed is not None else sample_number(sample, "gnss_speed_mps")
 
 
 class HandStep(ABC):
@@ -132,6 +128,18 @@ class HandStep(ABC):
         """Take one sample as the step needs it (the engaged check done); a text ends
         the run."""
 
+    @abstractmethod
+    def progress(self) -> Progress:
+        """The coverage so far, as the technician's progress line shows it."""
+
+    @abstractmethod
+    def complete(self) -> bool:
+        """Enough taken for the fit: the run stops tapping and fits."""
+
+    @abstractmethod
+    def fit(self, samples: Sequence[Mapping[str, Any]], raw_data: str | None) -> FitReport:
+        """The fit over ``samples`` (a live run's, a samples file's or a recording's)."""
+
     def steering_ratio(self) -> float:
         ratio = self.context.options.get("x_steering_ratio")
         if isinstance(ratio, int | float) and ratio > 0:
@@ -178,13 +186,13 @@ class PotCentreStep(HandStep):
         return problems
 
     def take(self, sample: Mapping[str, Any]) -> str | None:
-        pot = _number(sample, "pot_counts")
-        speed = _speed(sample)
-        yaw_rate = _number(sample, "yaw_rate_rad_per_s")
-        t_s = _number(sample, "t_s")
+        pot = sample_number(sample, "pot_counts")
+        speed = sample_speed(sample)
+        yaw_rate = sample_number(sample, "yaw_rate_rad_per_s")
+        t_s = sample_number(sample, "t_s")
         if pot is None or speed is None or yaw_rate is None or t_s is None:
             return None  # counted by the fit as missing, never a reason to stop
-        gnss_t = _number(sample, "gnss_time_s")
+        gnss_t = sample_number(sample, "gnss_time_s")
         fix_ok = gnss_t is not None and t_s - gnss_t <= MAX_FIX_AGE_S
         self.accumulator.update(t_s, pot, yaw_rate, abs(speed), 0.0, fix_ok)
         return None
@@ -288,198 +296,3 @@ def _draw_pot_centre(plt: Any, result: PotCentreResult) -> Any:
     axes.set_ylabel("pot at zero curvature (counts)")
     axes.set_title("pot centre: one estimate per straight stretch")
     return figure
-
-
-class PotMapStep(HandStep):
-    name = "pot-map"
-    summary = "Stationary: turn the wheel lock to lock in half turns (Fig. 17): the pot map."
-    extra_options = (
-        click.option(
-            "--steering-ratio",
-            "x_steering_ratio",
-            type=click.FloatRange(min=1.0, max=60.0),
-            help="Steering-wheel rad per tyre rad, where no calibration gives it.",
-        ),
-    )
-    # A remounted pot reads outside the old calibration's range near the locks: the
-    # daemon calls the steering unknown and holds its safe state (brake on, standing
-    # still is what this step wants anyway); the map being measured is the cure.
-    tolerated_faults = frozenset({"steering_unknown"})
-    instructions: tuple[str, ...] = (
-        "pot-map: with the vehicle standing still, engine running, servo released:",
-        "  turn the steering wheel to full RIGHT lock and let it rest 2 s;",
-        "  then turn it LEFT half a turn at a time, resting 2 s after each, to full left;",
-        "  then back RIGHT the same way, half turns with rests, to full right.",
-    )
-
-    def reset(self) -> None:
-        self.accumulator = PotMapAccumulator()
-        self._coverage_rows = -1
-        self._coverage = self.accumulator.coverage()
-        self._rows = 0
-        self._encoder_rad: float | None = None
-        self._still_since_s = math.inf
-        self._moving_since_s = math.inf
-        self._last_s = -math.inf
-
-    def preconditions(self, status: Mapping[str, Any]) -> list[str]:
-        problems = super().preconditions(status)
-        speed = status.get("measured_speed_mps")
-        if not isinstance(speed, int | float):
-            problems.append("the vehicle's speed is unknown: the pot map is measured standing")
-        elif abs(speed) > STILL_MPS:
-            problems.append(f"the vehicle is moving ({speed:.2f} m/s): stop it first")
-        return problems
-
-    def take(self, sample: Mapping[str, Any]) -> str | None:
-        speed = _speed(sample)
-        pot = _number(sample, "pot_counts")
-        encoder = _number(sample, "servo_position_rad")
-        t_s = _number(sample, "t_s")
-        if t_s is None:
-            return None
-        if speed is None or abs(speed) <= STILL_MPS:
-            self._moving_since_s = math.inf
-        else:
-            self._moving_since_s = min(self._moving_since_s, t_s)
-            if t_s - self._moving_since_s >= MOVING_S:
-                return f"the vehicle moved ({speed:.2f} m/s): the pot map is measured standing"
-        if pot is None or encoder is None:
-            return None
-        # By hand nothing is commanded: the wheel is where the hands hold it.
-        command = _number(sample, "steer_setpoint_rad")
-        self.accumulator.update(t_s, encoder, pot, encoder if command is None else command)
-        self._rows += 1
-        if self._encoder_rad is None or abs(encoder - self._encoder_rad) > STILL_WHEEL_RAD:
-            self._encoder_rad, self._still_since_s = encoder, t_s
-        self._last_s = t_s
-        return None
-
-    def coverage(self) -> PotMapCoverage:
-        if self._coverage_rows != self._rows:
-            self._coverage = self.accumulator.coverage()
-            self._coverage_rows = self._rows
-        return self._coverage
-
-    def progress(self) -> Progress:
-        c = self.coverage()
-        need = self.accumulator.params.min_pauses_per_direction
-        fraction = (min(c.pauses_up, need) + min(c.pauses_down, max(need, c.pauses_up))) / (
-            need + max(need, c.pauses_up)
-        )
-        span = (
-            f", encoder {c.encoder_min_rad:+.1f}..{c.encoder_max_rad:+.1f} rad"
-            if c.encoder_min_rad is not None
-            else ""
-        )
-        return Progress(
-            fraction, bar(fraction), f"rests: {c.pauses_up} going left, {c.pauses_down} back{span}"
-        )
-
-    def complete(self) -> bool:
-        """Back at full right and resting there, with as many rests on the way back as
-        on the way out (the rest at full right before the sweep counts as one back)."""
-        c = self.coverage()
-        need = self.accumulator.params.min_pauses_per_direction
-        at_right_lock = (
-            c.encoder_min_rad is not None
-            and self._encoder_rad is not None
-            and abs(self._encoder_rad - c.encoder_min_rad) < LOCK_TOLERANCE_RAD
-            and self._last_s - self._still_since_s >= FINAL_REST_S
-        )
-        return c.pauses_up >= need and c.pauses_down >= c.pauses_up and at_right_lock
-
-    def fit(self, samples: Sequence[Mapping[str, Any]], raw_data: str | None) -> FitReport:
-        self.reset()
-        for sample in samples:
-            self.take(sample)
-        calibration = self.context.calibration
-        centre = None if calibration is None else calibration.steering.pot_centre_counts
-        centre = self.context.options.get("x_pot_centre_counts", centre)
-        result = self.accumulator.fit(self.steering_ratio(), centre)
-        return pot_map_report(result, len(samples), raw_data, self.steering_ratio())
-
-
-def pot_map_report(
-    result: PotMapResult, taken: int, raw_data: str | None, steering_ratio: float
-) -> FitReport:
-    verdict = result.verdict
-    rejected = with_unread(result.rejected, taken, result.samples)
-    lines = [
-        f"pot map: {sum(1 for p in result.pauses if p.used)} rests used of "
-        f"{len(result.pauses)} and {result.motion_samples} samples turning, counts "
-        f"{result.usable_min_counts:.0f}..{result.usable_max_counts:.0f}"
-        f" (valid {result.pot_valid_min_counts}..{result.pot_valid_max_counts})",
-        f"  centre {_counts(result.pot_centre_counts)} ({result.centre_from}), backlash "
-        f"{abs(result.backlash_rad):.4f} rad of wheel (+-{result.backlash_std_error_rad:.4f}), "
-        f"monotonic {'yes' if result.monotonic else 'NO'}",
-        f"  residuals {result.residual_rms_tyre_deg:.3f} deg tyre rms, "
-        f"{result.residual_max_tyre_deg:.3f} max",
-        *tail_lines(taken, result.accepted, rejected, result.method, verdict),
-    ]
-    step_result = None
-    if verdict.accepted and result.pot_centre_counts is not None:
-        values: dict[str, Any] = {
-            "steering.pot_centre_counts": result.pot_centre_counts,
-            "steering.pot_to_wheel_coeffs": list(result.pot_to_wheel_coeffs),
-            "steering.pot_valid_min_counts": result.pot_valid_min_counts,
-            "steering.pot_valid_max_counts": result.pot_valid_max_counts,
-            "steering.steering_ratio": steering_ratio,
-        }
-        record = item_record(
-            method=result.method,
-            accepted=True,
-            residual_rms=result.residual_rms_tyre_deg,
-            residual_max=result.residual_max_tyre_deg,
-            residual_unit="deg tyre",
-            samples_used=result.accepted,
-            rejected=rejected,
-            summary=lines[0],
-            raw_data=raw_data,
-        )
-        step_result = StepResult("pot_map", values, record)
-    return FitReport(
-        step="pot-map",
-        accepted=step_result is not None,
-        lines=tuple(lines),
-        reasons=verdict.reasons,
-        result=step_result,
-        draw=lambda plt: _draw_pot_map(plt, result),
-        figures={
-            "pot_centre_counts": result.pot_centre_counts,
-            "backlash_rad": result.backlash_rad,
-            "residual_rms_tyre_deg": result.residual_rms_tyre_deg,
-            "residual_max_tyre_deg": result.residual_max_tyre_deg,
-            "valid_counts": [result.pot_valid_min_counts, result.pot_valid_max_counts],
-        },
-    )
-
-
-def _draw_pot_map(plt: Any, result: PotMapResult) -> Any:
-    """Fig. 17: the rests (pot against encoder, by sweep direction) and the fitted map."""
-    figure, axes = plt.subplots(figsize=(7, 5))
-    zero = result.encoder_at_centre_rad
-    for direction, colour, label in ((1, "tab:blue", "turning left"), (-1, "tab:orange", "back")):
-        rests = [p for p in result.pauses if p.direction == direction]
-        axes.scatter(
-            [p.pot_counts for p in rests],
-            [p.encoder_rad - zero for p in rests],
-            c=colour,
-            marker="o",
-            label=label,
-        )
-    if result.pot_centre_counts is not None:
-        counts = np.linspace(result.pot_valid_min_counts, result.pot_valid_max_counts, 200)
-        wheel = wheel_rad_at(result.pot_to_wheel_coeffs, counts - result.pot_centre_counts)
-        axes.plot(counts, wheel, "k-", lw=1, label="map")
-    axes.set_xlabel("pot (counts)")
-    axes.set_ylabel("steering wheel from the encoder (rad)")
-    axes.set_title("pot map (Stanley et al., Fig. 17)")
-    axes.legend()
-    return figure
-
-
-STEP_CLASSES: dict[str, type[PotCentreStep] | type[PotMapStep]] = {
-    PotCentreStep.name: PotCentreStep,
-    PotMapStep.name: PotMapStep,
-}

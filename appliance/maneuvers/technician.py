@@ -32,6 +32,7 @@ class Pose:
     wheel_rad: float | None  # None: hands off the wheel
     throttle_pct: float = 0.0
     brake_pct: float = 0.0
+    reverse: bool = False  # the gear selector
 
 
 def pot_map_schedule(
@@ -95,6 +96,45 @@ def straight_legs_schedule(
     return poses
 
 
+def palm_tree_schedule(
+    lock_rad: float,
+    *,
+    half_turn_rad: float = HALF_TURN_RAD,
+    rate_rad_per_s: float = 2.0,
+    arc_s: float = 6.0,
+    throttle_pct: float = 30.0,
+    brake_s: float = 3.0,
+    brake_pct: float = 60.0,
+    step_s: float = 0.05,
+    back_up: bool = True,
+) -> list[Pose]:
+    """Stanley et al., Fig. 18: at a standstill the wheel to full left; an arc forward for
+    ``arc_s``, braked to a stop, the same back in reverse, braked (``back_up``; without
+    it the arcs go on forward, on a simulated ground without end); half a turn right at
+    the standstill; again, to full right. Then the wheel back to the centre, hands off.
+
+    The stops between arcs are the technician's: the wheel is only turned with the vehicle
+    standing, so every arc is driven at one held angle (the fit cuts arcs where it moves).
+    """
+    stops = [lock_rad]
+    while stops[-1] - half_turn_rad > -lock_rad + 1e-9:
+        stops.append(stops[-1] - half_turn_rad)
+    stops.append(-lock_rad)
+    poses: list[Pose] = []
+    t_s, wheel = 0.0, 0.0
+    for stop in stops:
+        t_s, wheel = _ramp(poses, t_s, wheel, stop, rate_rad_per_s, step_s)
+        for reverse in (False, True) if back_up else (False,):
+            poses.append(Pose(t_s, wheel, throttle_pct, 0.0, reverse))
+            t_s += arc_s
+            poses.append(Pose(t_s, wheel, 0.0, brake_pct, reverse))
+            t_s += brake_s
+        poses.append(Pose(t_s, wheel, 0.0, 0.0, False))
+    t_s, wheel = _ramp(poses, t_s, wheel, 0.0, rate_rad_per_s, step_s)
+    poses.append(Pose(t_s + 0.5, None))
+    return poses
+
+
 def _ramp(
     poses: list[Pose], t_s: float, wheel: float, target: float, rate: float, step_s: float
 ) -> tuple[float, float]:
@@ -119,12 +159,16 @@ async def play(
         started = clock()
         throttle: float | None = None
         brake: float | None = None
+        reverse: bool | None = None
         try:
             for pose in poses:
                 delay = started + pose.t_s / speed - clock()
                 if delay > 0:
                     await asyncio.sleep(delay)
                 await _call(bench, {"op": "hands", "wheel_rad": pose.wheel_rad})
+                if pose.reverse != reverse and (pose.reverse or reverse is not None):
+                    reverse = pose.reverse
+                    await _call(bench, {"op": "gear", "reverse": reverse})
                 if pose.throttle_pct != throttle:
                     throttle = pose.throttle_pct
                     await _pedal(bench, throttle)
@@ -137,6 +181,7 @@ async def play(
 
 async def _let_go(bench: ControlClient) -> None:
     await _call(bench, {"op": "hands", "wheel_rad": None})
+    await _call(bench, {"op": "gear", "reverse": False})
     await _pedal(bench, 0.0)
     await _pedal(bench, 0.0, "brake")
 

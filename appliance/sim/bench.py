@@ -98,6 +98,14 @@ class Hands(_Request):
     )
 
 
+class Gear(_Request):
+    """The operator's gear selector: forward, or reverse (the palm tree backs up its arcs).
+    On a vehicle with a PC104 the PC104's own reverse counts as well."""
+
+    op: Literal["gear"]
+    reverse: bool
+
+
 class Unplug(_Request):
     """The board's USB cable pulled: its tty goes away until ``replug``."""
 
@@ -158,6 +166,7 @@ Request = Annotated[
     | Pedal
     | BrakeTap
     | Hands
+    | Gear
     | Unplug
     | Corrupt
     | Pc104Faults
@@ -175,6 +184,7 @@ OPS = (
     "pedal",
     "brake_tap",
     "hands",
+    "gear",
     "unplug",
     "replug",
     "corrupt",
@@ -271,6 +281,8 @@ class SimBench:
                 boards.brake.operator_brake_tap(pct, duration_s)
             case Hands(wheel_rad=wheel_rad):
                 boards.steering.operator_hands(wheel_rad)
+            case Gear(reverse=reverse):
+                self.world.set_inputs("operator", reverse=reverse)
             case Unplug(op="unplug", board=board):
                 boards.boards[board].unplug()
             case Unplug(board=board):

@@ -58,7 +58,11 @@ class VehicleParams:
         return cls(
             wheelbase_m=config.geometry.wheelbase_m,
             track_width_m=config.geometry.track_width_m,
-            counter_steer_ratio_k=config.geometry.counter_steer_ratio_k,
+            counter_steer_ratio_k=(
+                config.geometry.counter_steer_ratio_k
+                if config.simulation.steering.counter_steer_ratio_k is None
+                else config.simulation.steering.counter_steer_ratio_k
+            ),
             characteristic_speed_mps=config.geometry.characteristic_speed_mps,
             max_steer_angle_rad=math.radians(config.limits.max_steer_angle_deg),
             max_steer_rate_rad_per_s=math.radians(config.limits.max_steer_rate_deg_per_s),

@@ -89,7 +89,7 @@ class SimWorld:
             rear_steer_rad=pc104.get("rear_steer_rad", 0.0),
             throttle_pct=max((s.get("throttle_pct", 0.0) for s in slots.values()), default=0.0),
             brake_pct=max((s.get("brake_pct", 0.0) for s in slots.values()), default=0.0),
-            reverse=bool(pc104.get("reverse", False)),
+            reverse=any(bool(s.get("reverse", False)) for s in slots.values()),
         )
 
     def advance_to(self, t_s: float) -> VehicleState:

@@ -13,6 +13,7 @@ fault, and Ctrl-C (a cancelled run) each leave the calibration file as it was.
 from __future__ import annotations
 
 import asyncio
+import json
 import math
 import signal
 import sys
@@ -30,6 +31,7 @@ from appliance.config.calibration_file import read_calibration_file, write_calib
 from appliance.config.simulated_calibration import simulated_calibration
 from appliance.maneuvers import technician
 from appliance.modes import Mode
+from appliance.sim.linkage import SteeringLinkage
 from drivers.actuators.steering_model import PotMapping, ServoParams
 from tests.runtime.test_daemon_dock import running, until
 from tests.runtime.test_daemon_route import route_config
@@ -38,7 +40,10 @@ pytestmark = [pytest.mark.slow, pytest.mark.timeout(240.0)]
 
 TRUE_CENTRE_COUNTS = 2171.0
 ENCODER_OFFSET_RAD = 1.3
+LINKAGE_CUBIC = 0.06  # the tyre turns 6 % further than the constant ratio at the lock
+TRUE_K = 0.6  # the vehicle file says 0.63, as the paper's measurement did
 SERVO = ServoParams()
+LINKAGE = SteeringLinkage(SERVO.steering_ratio, SERVO.wheel_limit_rad, LINKAGE_CUBIC)
 
 
 def calibration_config() -> VehicleConfig:
@@ -50,11 +55,20 @@ def calibration_config() -> VehicleConfig:
                     "pot_centre_counts": TRUE_CENTRE_COUNTS,
                     "encoder_offset_rad": ENCODER_OFFSET_RAD,
                     "pot_seed": 7,
+                    "linkage_cubic": LINKAGE_CUBIC,
+                    "counter_steer_ratio_k": TRUE_K,
                 }
-            )
+            ),
+            "gnss_sigma_m": 0.02,  # the issue's figures are for a 2 cm fix
         }
     )
     return config.model_copy(update={"simulation": simulation})
+
+
+def on_calibration(config: VehicleConfig, path: Path) -> VehicleConfig:
+    """The daemon restarted on the calibration file the steps wrote."""
+    paths = config.paths.model_copy(update={"calibration_file": str(path)})
+    return config.model_copy(update={"paths": paths})
 
 
 async def dbw(*args: str) -> Result:
@@ -192,6 +206,68 @@ async def test_pot_centre_then_pot_map_recover_the_hidden_installation(tmp_path:
     )
     assert again.exit_code == 0, again.output
     assert '"accepted": true' in again.output
+
+    # Then the palm tree, on the daemon restarted with the file just written (as the
+    # command says to do): one arc at every half turn from full left to full right.
+    async with running(on_calibration(config, calfile)) as (daemon, twins):
+        socket = str(daemon.control_server.path)
+        await until(lambda: daemon.core.state.mode is Mode.READY, 20.0, daemon, "READY")
+        await until(lambda: fixed(daemon), 10.0, daemon, "a GNSS/INS fix")
+        palm_samples = tmp_path / "palm-tree.jsonl"
+        command = asyncio.create_task(
+            dbw(
+                "calibrate",
+                "palm-tree",
+                *common,
+                "--socket",
+                socket,
+                "--samples",
+                str(palm_samples),
+                "--timeout",
+                "150",
+            )
+        )
+        await tapping(command, daemon)
+        schedule = technician.palm_tree_schedule(
+            SERVO.wheel_limit_rad, back_up=False, arc_s=4.0, brake_s=2.0
+        )
+        result = await acted_out(command, twins.path, schedule)
+        print(result.output)
+        assert result.exit_code == 0, result.output
+        assert not daemon.status_document()["fault_history"]
+
+    mapped = Calibration.from_file(read_calibration_file(calfile, config.name))
+    assert mapped.wheel_to_tyre_coeffs is not None
+    tyre_error_deg = tyre_map_error_deg(mapped, truth)
+    palm = await dbw(
+        "calibrate",
+        "fit",
+        str(palm_samples),
+        "--config",
+        "husky-sim",
+        "--calibration",
+        str(calfile),
+        "--json",
+    )
+    assert palm.exit_code == 0, palm.output
+    document = next(line for line in palm.output.splitlines() if line.startswith("{"))
+    k = json.loads(document)["k_from_arcs"]
+    print(f"[calibrate] palm tree: tyre map error {tyre_error_deg:.3f} deg, k {k:.4f}")
+    assert tyre_error_deg < 0.3  # the issue's figure for the palm tree's map
+    assert abs(k - TRUE_K) < 0.02 * TRUE_K  # and for k
+
+
+def tyre_map_error_deg(calibration: Calibration, truth: PotMapping) -> float:
+    """The largest front-tyre angle error from pot counts through the file's maps, against
+    the simulated linkage at the true wheel angle, over the wheel's travel."""
+    wheel = np.linspace(-SERVO.wheel_limit_rad, SERVO.wheel_limit_rad, 801)
+    errors = []
+    for w in wheel:
+        tyre = calibration.tyre_rad_from_counts(truth.ideal_counts(float(w)))
+        if tyre is not None:
+            errors.append(abs(math.degrees(tyre - LINKAGE.tyre_rad(float(w)))))
+    assert len(errors) > 0.9 * wheel.size  # the pot's valid range spans the travel
+    return max(errors)
 
 
 async def test_aborts_leave_the_calibration_untouched(tmp_path: Path) -> None:

@@ -42,6 +42,7 @@ class ActuatorTwins:
         servo_params: ServoParams | None = None,
         pot_mapping: PotMapping | None = None,
         encoder_offset_rad: float = 0.0,
+        linkage_cubic: float = 0.0,
         seed: int = 0,
     ) -> None:
         self._own_directory = directory is None
@@ -54,6 +55,7 @@ class ActuatorTwins:
             params=servo_params,
             pot_mapping=pot_mapping,
             encoder_offset_rad=encoder_offset_rad,
+            linkage_cubic=linkage_cubic,
             seed=seed,
             **timing,
         )
@@ -78,6 +80,7 @@ class ActuatorTwins:
             command_timeout_s=config.safety.lower_layer_command_timeout_s,
             pot_mapping=PotMapping(centre_counts=steering.pot_centre_counts),
             encoder_offset_rad=steering.encoder_offset_rad,
+            linkage_cubic=steering.linkage_cubic,
             seed=steering.pot_seed,
         )
         twins.throttle.pedal_drives_engine = config.speed_path == "pedals"

@@ -13,6 +13,7 @@ import random
 from collections.abc import Callable
 from typing import ClassVar
 
+from appliance.sim.linkage import SteeringLinkage
 from appliance.sim.world import SimWorld
 from drivers.actuators.messages import (
     BUTTON_ORDER,
@@ -62,12 +63,16 @@ class SteeringTwin(BoardTwin[SteeringCommand]):
         params: ServoParams | None = None,
         pot_mapping: PotMapping | None = None,
         encoder_offset_rad: float = 0.0,
+        linkage_cubic: float = 0.0,
         seed: int = 0,
         **board: float,
     ) -> None:
         super().__init__(link_path, **board)
         self.world = world
         self.params = params if params is not None else ServoParams()
+        self.linkage = SteeringLinkage(
+            self.params.steering_ratio, self.params.wheel_limit_rad, linkage_cubic
+        )
         self.pot_mapping = pot_mapping if pot_mapping is not None else PotMapping()
         # The servo encoder is relative: zero where the servo was mounted, not straight ahead.
         self.encoder_offset_rad = encoder_offset_rad
@@ -133,7 +138,7 @@ class SteeringTwin(BoardTwin[SteeringCommand]):
         else:
             self._position_error_s = 0.0
         if self.world is not None:
-            tyre_rad = self.servo.wheel_rad / self.params.steering_ratio
+            tyre_rad = self.linkage.tyre_rad(self.servo.wheel_rad)
             self.world.set_inputs("steering_servo", front_steer_rad=tyre_rad)
 
     def hardware_fault(self) -> FaultCode:

@@ -16,9 +16,10 @@ from typing import Any
 import pytest
 
 from appliance.config import load_config
+from appliance.maneuvers.pot_map_step import PotMapStep
 from appliance.maneuvers.runner import ManeuverRunner, RefusedError
 from appliance.maneuvers.samples_file import SamplesWriter, header
-from appliance.maneuvers.steps import PotMapStep, StepContext
+from appliance.maneuvers.steps import StepContext
 from tests.unit.maneuvers.test_steps import tap_samples
 
 CONFIG = load_config("husky")

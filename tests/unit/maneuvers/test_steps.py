@@ -14,9 +14,10 @@ import pytest
 
 from appliance.config import load_config
 from appliance.core.maneuver_tap import ManeuverSample
+from appliance.maneuvers.pot_map_step import PotMapStep
 from appliance.maneuvers.runner import sample_problem
 from appliance.maneuvers.samples_file import SamplesWriter, header, read_samples_file
-from appliance.maneuvers.steps import PotMapStep, StepContext
+from appliance.maneuvers.steps import StepContext
 from calibration.pot_map import wheel_rad_at
 from tests.unit.calibration.synthetic import pot_sweep
 

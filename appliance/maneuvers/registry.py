@@ -1,0 +1,13 @@
+"""Every maneuver step ``dbw calibrate`` knows, by its command name."""
+
+from __future__ import annotations
+
+from appliance.maneuvers.palm_tree_step import PalmTreeStep
+from appliance.maneuvers.pot_map_step import PotMapStep
+from appliance.maneuvers.steps import HandStep, PotCentreStep
+
+STEP_CLASSES: dict[str, type[HandStep]] = {
+    PotCentreStep.name: PotCentreStep,
+    PotMapStep.name: PotMapStep,
+    PalmTreeStep.name: PalmTreeStep,
+}
