@@ -33,9 +33,10 @@ from calibration.palm_tree import PalmTreeFit, PalmTreeParams, fit_palm_tree
 from calibration.palm_tree_samples import PalmTreeRecorder
 
 HALF_TURN_RAD = math.pi
-# Arc driven per half-turn bin before the bin counts as covered: twice the fit's shortest
-# arc, so one arc cut by a GNSS jump still leaves a usable piece.
-ARC_NEEDED_M = 4.0
+# Arc driven per half-turn bin before the bin counts as covered. With a 2 cm fix an arc
+# needs about this much for the fit's 0.1 deg tyre-angle precision (the curvature's error
+# falls with the square of the arc's length); shorter ones are refused as imprecise.
+ARC_NEEDED_M = 8.0
 BETWEEN_EPOCHS = "between fixes"  # control cycles that repeat the last epoch: not samples
 
 
@@ -45,7 +46,8 @@ class PalmTreeStep(HandStep):
     instructions: tuple[str, ...] = (
         "palm-tree: on open level ground, at walking pace (below 2 m/s):",
         "  turn the wheel to full LEFT lock at a standstill and hold it there;",
-        "  drive forward at least 5 m of arc, then reverse back over it (or stop);",
+        "  drive forward at least 10 m of arc at a steady walking pace, then reverse",
+        "  back over it (or stop);",
         "  stopped, turn the wheel half a turn RIGHT and hold it; drive the next arc;",
         "  and so on, half a turn at a time, to full RIGHT lock. Then stop.",
     )
@@ -121,9 +123,10 @@ class PalmTreeStep(HandStep):
         return None
 
     def _bins(self) -> list[float]:
+        """Half-turn bins from full left (positive) to full right, as the arcs are driven."""
         low, high = self._converter().valid_wheel_range_rad
         first, last = round(low / HALF_TURN_RAD), round(high / HALF_TURN_RAD)
-        return [k * HALF_TURN_RAD for k in range(first, last + 1)]
+        return [k * HALF_TURN_RAD for k in range(last, first - 1, -1)]
 
     def progress(self) -> Progress:
         bins = self._bins()

@@ -101,15 +101,18 @@ def palm_tree_schedule(
     *,
     half_turn_rad: float = HALF_TURN_RAD,
     rate_rad_per_s: float = 2.0,
-    arc_s: float = 6.0,
-    throttle_pct: float = 30.0,
+    arc_s: float = 8.0,
+    launch_pct: float = 70.0,
+    launch_s: float = 2.2,
+    cruise_pct: float = 8.0,
     brake_s: float = 3.0,
     brake_pct: float = 60.0,
     step_s: float = 0.05,
     back_up: bool = True,
 ) -> list[Pose]:
     """Stanley et al., Fig. 18: at a standstill the wheel to full left; an arc forward for
-    ``arc_s``, braked to a stop, the same back in reverse, braked (``back_up``; without
+    ``arc_s`` (pressed to get going for ``launch_s``, then eased to a walking pace: the
+    simulated Husky's 1.5 m/s with the defaults), braked to a stop, the same back in reverse, braked (``back_up``; without
     it the arcs go on forward, on a simulated ground without end); half a turn right at
     the standstill; again, to full right. Then the wheel back to the centre, hands off.
 
@@ -125,7 +128,8 @@ def palm_tree_schedule(
     for stop in stops:
         t_s, wheel = _ramp(poses, t_s, wheel, stop, rate_rad_per_s, step_s)
         for reverse in (False, True) if back_up else (False,):
-            poses.append(Pose(t_s, wheel, throttle_pct, 0.0, reverse))
+            poses.append(Pose(t_s, wheel, launch_pct, 0.0, reverse))
+            poses.append(Pose(t_s + launch_s, wheel, cruise_pct, 0.0, reverse))
             t_s += arc_s
             poses.append(Pose(t_s, wheel, 0.0, brake_pct, reverse))
             t_s += brake_s

@@ -6,7 +6,10 @@ encoder zeroed 1.3 rad away from straight): the daemon runs on a calibration tha
 as on a vehicle whose pot was remounted. A simulated technician drives and turns the
 wheel through the bench while the commands watch through the control socket. Neither the
 commands nor the fits are told the truth; it is checked at the end against the file
-written. Then the aborts: the operator engaging mid-maneuver, the daemon going to a
+written. Then, on the daemon restarted with that file, the palm tree: the simulated
+linkage turns the tyre 6 % further than the constant ratio at the lock and its
+counter-steer ratio is 0.6 where the vehicle file says 0.63; the map and k are checked
+against those. Then the aborts: the operator engaging mid-maneuver, the daemon going to a
 fault, and Ctrl-C (a cancelled run) each leave the calibration file as it was.
 """
 
@@ -36,7 +39,7 @@ from drivers.actuators.steering_model import PotMapping, ServoParams
 from tests.runtime.test_daemon_dock import running, until
 from tests.runtime.test_daemon_route import route_config
 
-pytestmark = [pytest.mark.slow, pytest.mark.timeout(240.0)]
+pytestmark = [pytest.mark.slow, pytest.mark.timeout(360.0)]
 
 TRUE_CENTRE_COUNTS = 2171.0
 ENCODER_OFFSET_RAD = 1.3
@@ -229,7 +232,7 @@ async def test_pot_centre_then_pot_map_recover_the_hidden_installation(tmp_path:
         )
         await tapping(command, daemon)
         schedule = technician.palm_tree_schedule(
-            SERVO.wheel_limit_rad, back_up=False, arc_s=4.0, brake_s=2.0
+            SERVO.wheel_limit_rad, back_up=False, arc_s=7.0, brake_s=2.0
         )
         result = await acted_out(command, twins.path, schedule)
         print(result.output)

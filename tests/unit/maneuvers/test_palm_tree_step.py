@@ -114,7 +114,7 @@ def test_coverage_fills_half_turn_by_half_turn_and_completes_at_a_standstill(
     assert fractions == sorted(fractions) and fractions[-1] == 1.0
     assert done_at is not None
     assert abs(samples[done_at]["gnss_speed_mps"]) < 0.3
-    assert "7/7 half turns" in step.progress().detail
+    assert "[#######] (7/7 half turns" in step.progress().detail
 
 
 def test_engaging_ends_the_step() -> None:

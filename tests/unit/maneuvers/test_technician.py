@@ -3,10 +3,16 @@
 from __future__ import annotations
 
 import itertools
+import math
 
 import pytest
 
-from appliance.maneuvers.technician import Pose, pot_map_schedule, straight_legs_schedule
+from appliance.maneuvers.technician import (
+    Pose,
+    palm_tree_schedule,
+    pot_map_schedule,
+    straight_legs_schedule,
+)
 
 LOCK_RAD = 9.42
 
@@ -47,3 +53,20 @@ def test_the_straight_legs_drive_then_brake_and_let_go() -> None:
     driving = poses[:-2]
     assert all(p.throttle_pct == 50.0 for p in driving)
     assert poses[-2].t_s == pytest.approx(3 * 10.0 + 2 * 4.0)
+
+
+def test_the_palm_tree_turns_the_wheel_only_standing_and_backs_up_every_arc() -> None:
+    poses = palm_tree_schedule(LOCK_RAD, arc_s=7.0, brake_s=2.0)
+    held = sorted({p.wheel_rad for p in poses if p.throttle_pct > 0.0 and p.wheel_rad is not None})
+    assert held == pytest.approx(sorted(LOCK_RAD - k * math.pi for k in range(7)), abs=0.2)
+    assert max(held) == LOCK_RAD and min(held) == -LOCK_RAD
+    # The throttle is only pressed at a held wheel angle, and each arc is backed up.
+    for before, after in itertools.pairwise(poses):
+        if before.wheel_rad != after.wheel_rad:
+            assert before.throttle_pct == 0.0 and after.throttle_pct == 0.0
+    forward = [p for p in poses if p.throttle_pct > 0.0 and not p.reverse]
+    backward = [p for p in poses if p.throttle_pct > 0.0 and p.reverse]
+    assert len(forward) == len(backward) == 2 * 7  # launch and cruise, per arc
+    assert poses[-1].wheel_rad is None and not poses[-1].reverse
+    ahead_only = palm_tree_schedule(LOCK_RAD, back_up=False)
+    assert not any(p.reverse for p in ahead_only)
