@@ -6,13 +6,19 @@ away from what the built-in calibration assumes (a pot centre drawn ±60 counts,
 encoder zero drawn ±2 rad, its own pot noise), `dbw calibrate pot-center` while the
 simulated technician drives four straight stretches, then `dbw calibrate pot-map` while
 they turn the wheel lock to lock in half turns (Fig. 17). Neither command nor fit is told
-the truth; the file written is judged against it afterwards.
+the truth; the file written is judged against it afterwards. Then the daemon restarts on
+that file (as `dbw calibrate` tells the technician to) and `dbw calibrate palm-tree` runs
+while the technician drives an arc forward and backs it up at every half turn from full
+left to full right (Fig. 18), on a linkage whose departure from the constant ratio at the
+lock is drawn from 3..9 % and whose counter-steer ratio k is drawn from 0.55..0.70.
 
-    python -m benchmarks.bench_calibration [RUNS]     # 3 by default, about 2 min each
+    python -m benchmarks.bench_calibration [RUNS]     # 3 by default, about 5 min each
 
 Figures, printed and never asserted: the pot centre's error (tyre degrees; the issue's
-goal 0.1°), the pot map's largest error over its valid range (goal 0.2°), the time each
-maneuver took and the rests (pot map) and stretches (pot centre) it used.
+goal 0.1°), the pot map's largest error over its valid range (goal 0.2°), the palm tree's
+tyre-angle map's largest error from pot counts over the wheel's travel (goal 0.3°) and
+its k's relative error (goal 2 %), the time each maneuver took and the rests (pot map),
+stretches (pot centre) and arcs (palm tree) it used.
 """
 
 from __future__ import annotations
@@ -27,6 +33,7 @@ import sys
 import tempfile
 import time
 from collections.abc import AsyncIterator
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -42,6 +49,7 @@ from appliance.daemon import Daemon
 from appliance.logs import configure_logging
 from appliance.maneuvers import technician
 from appliance.modes import Mode
+from appliance.sim.linkage import SteeringLinkage
 from benchmarks.stats import summarize
 from drivers.actuators.steering_model import PotMapping, ServoParams
 
@@ -56,7 +64,14 @@ def free_port() -> int:
         return port
 
 
-def bench_config(seed: int) -> tuple[VehicleConfig, float]:
+@dataclass(frozen=True)
+class Truth:
+    centre_counts: float
+    linkage: SteeringLinkage
+    k: float
+
+
+def bench_config(seed: int) -> tuple[VehicleConfig, Truth]:
     rng = random.Random(seed)
     config = load_config("husky-sim")
     devices = config.devices.model_copy(
@@ -66,15 +81,20 @@ def bench_config(seed: int) -> tuple[VehicleConfig, float]:
         }
     )
     centre = 2131.0 + rng.uniform(-60.0, 60.0)
+    cubic = rng.uniform(0.03, 0.09)
+    k = rng.uniform(0.55, 0.70)
     steering = config.simulation.steering.model_copy(
         update={
             "pot_centre_counts": centre,
             "encoder_offset_rad": rng.uniform(-2.0, 2.0),
             "pot_seed": seed,
+            "linkage_cubic": cubic,
+            "counter_steer_ratio_k": k,
         }
     )
     simulation = config.simulation.model_copy(update={"steering": steering, "gnss_sigma_m": 0.02})
-    return config.model_copy(update={"devices": devices, "simulation": simulation}), centre
+    truth = Truth(centre, SteeringLinkage(SERVO.steering_ratio, SERVO.wheel_limit_rad, cubic), k)
+    return config.model_copy(update={"devices": devices, "simulation": simulation}), truth
 
 
 async def until(predicate: Any, timeout_s: float, what: str) -> None:
@@ -117,7 +137,8 @@ async def maneuver(args: list[str], bench: str, poses: list[technician.Pose]) ->
 
 
 async def one_run(seed: int, workdir: Path) -> dict[str, float]:
-    config, centre = bench_config(seed)
+    config, truth = bench_config(seed)
+    centre = truth.centre_counts
     calfile = workdir / f"cal-{seed}.toml"
     common = ["--config", "husky-sim", "--calibration", str(calfile), "--yes", "--timeout", "300"]
     async with running(config) as daemon:
@@ -125,14 +146,8 @@ async def one_run(seed: int, workdir: Path) -> dict[str, float]:
         bench = daemon.io.sim_process.bench_path
         sock = str(daemon.control_server.path)
 
-        def fixed() -> bool:
-            status = daemon.status_document()
-            gnss = status.get("gnss")
-            speed = status.get("measured_speed_mps")
-            return isinstance(gnss, dict) and bool(gnss.get("fix")) and speed is not None
-
         await until(lambda: daemon.core.state.mode is Mode.READY, 40.0, "READY")
-        await until(fixed, 20.0, "a fix")
+        await until(lambda: fixed(daemon), 20.0, "a fix")
         centre_out, centre_s = await maneuver(
             [
                 "calibrate",
@@ -168,9 +183,9 @@ async def one_run(seed: int, workdir: Path) -> dict[str, float]:
         )
     written = read_calibration_file(calfile, config.name)
     calibration = Calibration.from_file(written)
-    truth = PotMapping(centre_counts=centre)
+    pot = PotMapping(centre_counts=centre)
     wheel = np.linspace(-SERVO.wheel_limit_rad, SERVO.wheel_limit_rad, 4001)
-    counts = np.array([truth.ideal_counts(float(w)) for w in wheel])
+    counts = np.array([pot.ideal_counts(float(w)) for w in wheel])
     inside = (counts >= calibration.pot_valid_min_counts) & (
         counts <= calibration.pot_valid_max_counts
     )
@@ -184,7 +199,58 @@ async def one_run(seed: int, workdir: Path) -> dict[str, float]:
         f"map error {map_error:.3f} deg ({map_s:.0f} s; {rests})",
         flush=True,
     )
-    return {"centre": centre_error, "map": map_error, "centre_s": centre_s, "map_s": map_s}
+    palm = await palm_tree_run(config, calfile, workdir / f"palm-{seed}.jsonl", common)
+    palm_out, palm_s = palm
+    mapped = Calibration.from_file(read_calibration_file(calfile, config.name))
+    errors = [
+        abs(np.degrees(tyre - truth.linkage.tyre_rad(float(w))))
+        for w in wheel
+        if (tyre := mapped.tyre_rad_from_counts(pot.ideal_counts(float(w)))) is not None
+    ]
+    tyre_error = float(max(errors))
+    k_line = next(line for line in palm_out.splitlines() if "counter-steer" in line)
+    k = float(k_line.split("k = ")[1].split()[0])
+    k_error_pct = 100.0 * abs(k - truth.k) / truth.k
+    arcs = next(line for line in palm_out.splitlines() if line.startswith("palm tree:"))
+    print(
+        f"  seed {seed}: tyre map error {tyre_error:.3f} deg, k {k:.4f} of {truth.k:.4f} "
+        f"({k_error_pct:.2f} %) ({palm_s:.0f} s; {arcs})",
+        flush=True,
+    )
+    return {
+        "centre": centre_error,
+        "map": map_error,
+        "centre_s": centre_s,
+        "map_s": map_s,
+        "tyre": tyre_error,
+        "k_pct": k_error_pct,
+        "palm_s": palm_s,
+    }
+
+
+async def palm_tree_run(
+    config: VehicleConfig, calfile: Path, samples: Path, common: list[str]
+) -> tuple[str, float]:
+    """The palm tree on the daemon restarted with the file the pot steps wrote."""
+    paths = config.paths.model_copy(update={"calibration_file": str(calfile)})
+    async with running(config.model_copy(update={"paths": paths})) as daemon:
+        assert daemon.io.sim_process is not None
+        bench = daemon.io.sim_process.bench_path
+        await until(lambda: daemon.core.state.mode is Mode.READY, 40.0, "READY")
+        await until(lambda: fixed(daemon), 20.0, "a fix")
+        args = ["calibrate", "palm-tree", *common, "--socket", str(daemon.control_server.path)]
+        return await maneuver(
+            [*args, "--samples", str(samples)],
+            bench,
+            technician.palm_tree_schedule(SERVO.wheel_limit_rad),
+        )
+
+
+def fixed(daemon: Daemon) -> bool:
+    status = daemon.status_document()
+    gnss = status.get("gnss")
+    speed = status.get("measured_speed_mps")
+    return isinstance(gnss, dict) and bool(gnss.get("fix")) and speed is not None
 
 
 async def main(runs: int) -> None:
@@ -201,8 +267,17 @@ async def main(runs: int) -> None:
             "pot map error (max over the valid range)", [r["map"] for r in results], "deg tyre"
         )
     )
+    print(
+        summarize(
+            "palm-tree tyre map error (max over the wheel's travel)",
+            [r["tyre"] for r in results],
+            "deg tyre",
+        )
+    )
+    print(summarize("palm-tree k error", [r["k_pct"] for r in results], "%"))
     print(summarize("pot-center maneuver", [r["centre_s"] for r in results], "s"))
     print(summarize("pot-map maneuver", [r["map_s"] for r in results], "s"))
+    print(summarize("palm-tree maneuver", [r["palm_s"] for r in results], "s"))
 
 
 if __name__ == "__main__":

@@ -16,6 +16,11 @@ came after version 1 without a version bump, like ``counter_steer`` and ``guidan
 before them: the version says what the fields *mean*, and an optional table adds meaning
 without changing any other field's, so every version-1 file still loads unchanged.
 
+``steering.wheel_to_tyre_coeffs`` (optional, added the same way) is the palm tree's
+wheel-to-tyre map; without it the constant ``steering_ratio`` converts, with it the map
+does and ``steering_ratio`` must be its slope at straight ahead, so a reader that knows
+only the ratio still reads the right one near the centre.
+
 ``[items.<step>]`` records how each maneuver's result was obtained (method, date, tool
 version, residuals, verdict, raw data): :mod:`appliance.config.calibration_items`.
 
