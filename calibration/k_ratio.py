@@ -207,6 +207,39 @@ def centre_curvature_per_m(front_rad: float, k: float, wheelbase_m: float, gain:
     return math.cos(beta) * (tan_f + tan_r) / wheelbase_m * gain
 
 
+def centre_speed_ratio(
+    antenna_speed_mps: float,
+    yaw_rate_rad_per_s: float,
+    antenna_forward_m: float,
+    antenna_left_m: float,
+    sideslip_rad: float,
+) -> float:
+    """The geometric centre's speed over the antenna's in a steady turn.
+
+    A receiver reports its antenna's speed; the model's curvature is the centre's. Both
+    circle the same instantaneous centre of rotation, which lies ``R_c`` from the centre
+    at right angles to its velocity (at the sideslip β from the heading), so with the
+    antenna at (a, l) in the body frame and ``R_a = v_a / |ω|``:
+    ``R_a² = R_c² + 2 R_c (a sin β - l cos β) + a² + l²`` (a left turn; a right turn is
+    its mirror, l and β negated), solved for the positive ``R_c``. 1 for an antenna at
+    the centre, whatever the turn.
+    """
+    if yaw_rate_rad_per_s == 0.0 or antenna_speed_mps <= 0.0:
+        return 1.0
+    side = 1.0 if yaw_rate_rad_per_s > 0.0 else -1.0
+    a, lat, beta = antenna_forward_m, side * antenna_left_m, side * sideslip_rad
+    r_a = antenna_speed_mps / abs(yaw_rate_rad_per_s)
+    b = a * math.sin(beta) - lat * math.cos(beta)
+    c = a * a + lat * lat - r_a * r_a
+    discriminant = b * b - c
+    if discriminant < 0.0:
+        raise ValueError("no centre circle fits this antenna circle and offset")
+    r_c = -b + math.sqrt(discriminant)
+    if r_c <= 0.0:
+        raise ValueError("the turn is tighter than the antenna's offset from the centre")
+    return r_c / r_a
+
+
 def _turn_k(turn: SteadyTurn, tyre_map: TyreMap, p: TurnParams) -> TurnK | str:
     wheel = float(np.mean(turn.wheel_rad))
     if np.max(np.abs(turn.wheel_rad - wheel)) > p.hold_tolerance_rad:

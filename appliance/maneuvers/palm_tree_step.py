@@ -147,15 +147,21 @@ class PalmTreeStep(HandStep):
         covered = all(coverage.get(b, 0.0) >= ARC_NEEDED_M for b in self._bins())
         return covered and self._speed_mps < STILL_MPS
 
+    def fit_result(self) -> PalmTreeFit | None:
+        """The fit over the epochs taken so far; None without any."""
+        if self._epochs == 0:
+            return None
+        return fit_palm_tree(self.recorder.samples(), self.params())
+
     def fit(self, samples: Sequence[Mapping[str, Any]], raw_data: str | None) -> FitReport:
         self.reset()
         for sample in samples:
             self.take(sample)
         skipped = {k: v for k, v in self._skipped.items() if k != BETWEEN_EPOCHS}
-        if self._epochs == 0:
+        result = self.fit_result()
+        if result is None:
             lines = ("palm tree: no GNSS/INS epoch with a pot reading in the samples",)
             return FitReport(self.name, False, lines, reasons=("no epochs",))
-        result = fit_palm_tree(self.recorder.samples(), self.params())
         k_fit = fit_k_from_palm_tree(result) if result.arcs else None
         ratio = (
             self.context.calibration.steering.steering_ratio if self.context.calibration else None

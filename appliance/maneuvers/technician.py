@@ -112,9 +112,10 @@ def palm_tree_schedule(
 ) -> list[Pose]:
     """Stanley et al., Fig. 18: at a standstill the wheel to full left; an arc forward for
     ``arc_s`` (pressed to get going for ``launch_s``, then eased to a walking pace: the
-    simulated Husky's 1.5 m/s with the defaults), braked to a stop, the same back in reverse, braked (``back_up``; without
-    it the arcs go on forward, on a simulated ground without end); half a turn right at
-    the standstill; again, to full right. Then the wheel back to the centre, hands off.
+    simulated Husky's 1.5 m/s with the defaults), braked to a stop, the same back in
+    reverse, braked (``back_up``; without it the arcs go on forward, on a simulated
+    ground without end); half a turn right at the standstill; again, to full right. Then
+    the wheel back to the centre, hands off.
 
     The stops between arcs are the technician's: the wheel is only turned with the vehicle
     standing, so every arc is driven at one held angle (the fit cuts arcs where it moves).
@@ -134,6 +135,36 @@ def palm_tree_schedule(
             poses.append(Pose(t_s, wheel, 0.0, brake_pct, reverse))
             t_s += brake_s
         poses.append(Pose(t_s, wheel, 0.0, 0.0, False))
+    t_s, wheel = _ramp(poses, t_s, wheel, 0.0, rate_rad_per_s, step_s)
+    poses.append(Pose(t_s + 0.5, None))
+    return poses
+
+
+def steady_turns_schedule(
+    wheels_rad: Sequence[float] = (HALF_TURN_RAD, -HALF_TURN_RAD),
+    *,
+    rate_rad_per_s: float = 2.0,
+    turn_s: float = 14.0,
+    launch_pct: float = 70.0,
+    launch_s: float = 2.2,
+    cruise_pct: float = 8.0,
+    brake_s: float = 3.0,
+    brake_pct: float = 60.0,
+    step_s: float = 0.05,
+) -> list[Pose]:
+    """The k ratio's turning tests: at a standstill the wheel to each of ``wheels_rad``,
+    a steady circle at a walking pace for ``turn_s``, braked to a stop. Then the wheel
+    back to the centre, hands off."""
+    poses: list[Pose] = []
+    t_s, wheel = 0.0, 0.0
+    for target in wheels_rad:
+        t_s, wheel = _ramp(poses, t_s, wheel, target, rate_rad_per_s, step_s)
+        poses.append(Pose(t_s, wheel, launch_pct))
+        poses.append(Pose(t_s + launch_s, wheel, cruise_pct))
+        t_s += turn_s
+        poses.append(Pose(t_s, wheel, 0.0, brake_pct))
+        t_s += brake_s
+        poses.append(Pose(t_s, wheel))
     t_s, wheel = _ramp(poses, t_s, wheel, 0.0, rate_rad_per_s, step_s)
     poses.append(Pose(t_s + 0.5, None))
     return poses

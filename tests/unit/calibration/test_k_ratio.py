@@ -20,6 +20,7 @@ from calibration.k_ratio import (
     SteadyTurn,
     TurnParams,
     centre_curvature_per_m,
+    centre_speed_ratio,
     check_k,
     fit_k_from_arcs,
     fit_k_from_palm_tree,
@@ -185,3 +186,24 @@ def test_turn_garbage_raises_value_error() -> None:
         fit_k_from_turns([], LINEAR, TURNS)
     with pytest.raises(ValueError, match="wheelbase_m"):
         TurnParams(wheelbase_m=-1.0)
+
+
+@given(
+    st.floats(0.5, 3.0),
+    st.floats(0.05, 0.5),
+    st.floats(-4.0, 4.0),
+    st.floats(-1.0, 1.0),
+    st.floats(-0.1, 0.1),
+    st.booleans(),
+)
+def test_the_centre_speed_ratio_is_the_rigid_bodys(
+    v_centre: float, yaw_rate: float, a: float, lat: float, beta: float, right: bool
+) -> None:
+    """Against the rigid-body velocity of the antenna point, computed directly."""
+    omega = -yaw_rate if right else yaw_rate
+    vx, vy = v_centre * math.cos(beta), v_centre * math.sin(beta)
+    v_antenna = math.hypot(vx - omega * lat, vy + omega * a)
+    if v_centre / abs(omega) < 1.5 * math.hypot(a, lat):
+        return  # a turn about a point near the antenna: not a palm tree's or a turn test's
+    ratio = centre_speed_ratio(v_antenna, omega, a, lat, beta)
+    assert v_antenna * ratio == pytest.approx(v_centre, rel=1e-9)

@@ -39,9 +39,13 @@ CYCLES_PER_EPOCH = 5
 
 
 def tap_samples(seed: int = 1) -> list[dict[str, Any]]:
+    return as_tap_samples(palm_tree(seed=seed).rows)
+
+
+def as_tap_samples(rows: list[tuple[float, ...]]) -> list[dict[str, Any]]:
+    """Receiver epochs (t, x, y, yaw, speed, wheel, sigma) as the tap's cycles."""
     converter = Calibration.from_file(CALIBRATION)
-    rows = palm_tree(seed=seed).rows
-    samples = []
+    samples: list[dict[str, Any]] = []
     for t_s, x, y, yaw, speed, wheel, sigma in rows:
         counts = round(converter.counts_from_wheel_rad(float(wheel)))
         for cycle in range(CYCLES_PER_EPOCH):  # the control cycles repeat the last epoch
