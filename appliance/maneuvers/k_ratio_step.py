@@ -62,7 +62,7 @@ class KRatioStep(HandStep):
     )
     instructions: tuple[str, ...] = (
         "k-ratio: on open level ground, at a steady walking pace:",
-        "  hold the wheel half a turn or more LEFT and drive a steady circle for 12 s;",
+        "  hold the wheel a turn or more LEFT and drive a steady circle for 15 s;",
         "  stop; the same to the RIGHT. The palm tree must have been merged before.",
     )
 

@@ -1,4 +1,5 @@
-"""`dbw calibrate pot-center` then `dbw calibrate pot-map` against the daemon as shipped.
+"""`dbw calibrate pot-center`, `pot-map`, `palm-tree` and `k-ratio` against the daemon as
+shipped.
 
 The `husky-sim` profile's simulated vehicle has its steering installed differently from
 what the built-in calibration assumes (the pot's centre 40 counts off, the servo's
@@ -9,8 +10,9 @@ commands nor the fits are told the truth; it is checked at the end against the f
 written. Then, on the daemon restarted with that file, the palm tree: the simulated
 linkage turns the tyre 6 % further than the constant ratio at the lock and its
 counter-steer ratio is 0.6 where the vehicle file says 0.63; the map and k are checked
-against those. Then the aborts: the operator engaging mid-maneuver, the daemon going to a
-fault, and Ctrl-C (a cancelled run) each leave the calibration file as it was.
+against those; the turning tests confirm k, which is merged. Then the aborts: the
+operator engaging mid-maneuver, the daemon going to a fault, and Ctrl-C (a cancelled
+run) each leave the calibration file as it was.
 """
 
 from __future__ import annotations
@@ -237,6 +239,27 @@ async def test_pot_centre_then_pot_map_recover_the_hidden_installation(tmp_path:
         result = await acted_out(command, twins.path, schedule)
         print(result.output)
         assert result.exit_code == 0, result.output
+
+        # The turning tests confirm k (the tyre map they need is in the file now; the
+        # daemon only watches, so it need not be restarted for them).
+        command = asyncio.create_task(
+            dbw(
+                "calibrate",
+                "k-ratio",
+                *common,
+                "--socket",
+                socket,
+                "--samples",
+                str(tmp_path / "k-ratio.jsonl"),
+                "--timeout",
+                "90",
+            )
+        )
+        await tapping(command, daemon)
+        turns = technician.steady_turns_schedule((2 * math.pi, -2 * math.pi), turn_s=14.0)
+        result = await acted_out(command, twins.path, turns)
+        print(result.output)
+        assert result.exit_code == 0, result.output
         assert not daemon.status_document()["fault_history"]
 
     mapped = Calibration.from_file(read_calibration_file(calfile, config.name))
@@ -258,6 +281,9 @@ async def test_pot_centre_then_pot_map_recover_the_hidden_installation(tmp_path:
     print(f"[calibrate] palm tree: tyre map error {tyre_error_deg:.3f} deg, k {k:.4f}")
     assert tyre_error_deg < 0.3  # the issue's figure for the palm tree's map
     assert abs(k - TRUE_K) < 0.02 * TRUE_K  # and for k
+    assert mapped.counter_steer_k_ratio is not None  # merged by k-ratio: both agreed
+    print(f"[calibrate] k-ratio: k {mapped.counter_steer_k_ratio:.4f} merged")
+    assert abs(mapped.counter_steer_k_ratio - TRUE_K) < 0.02 * TRUE_K
 
 
 def tyre_map_error_deg(calibration: Calibration, truth: PotMapping) -> float:

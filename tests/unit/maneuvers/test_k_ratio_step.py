@@ -24,8 +24,10 @@ from tests.unit.maneuvers.test_palm_tree_step import (
     tap_samples,
 )
 
+TURNS_RAD = (2 * math.pi, -2 * math.pi)
 
-def turn_samples(wheels_rad: tuple[float, ...] = (2 * math.pi, -2 * math.pi)) -> list[dict[str, Any]]:
+
+def turn_samples(wheels_rad: tuple[float, ...] = TURNS_RAD) -> list[dict[str, Any]]:
     """Steady circles at 1.5 m/s, one per wheel angle, stopped between."""
     driver = Driver(GnssErrors(jump_m=0.0), seed=5)
     for wheel in wheels_rad:
