@@ -52,12 +52,12 @@ lint: venv
 typecheck: venv
 	$(BIN)/mypy
 
-# The unit tests are CPU-bound and run on every core; the runtime and browser tests run the
-# daemon and its twins in real time and run one at a time, so none waits on another's CPU.
+# The CPU-bound tests run on every core; the `realtime` ones (the daemon and its twins on
+# the wall clock: tests/conftest.py marks them) one at a time, so none is starved by another.
 UNIT_WORKERS ?= 2
 unit: venv
-	$(BIN)/pytest -n $(UNIT_WORKERS) tests/unit
-	$(BIN)/pytest tests/runtime tests/browser
+	$(BIN)/pytest -n $(UNIT_WORKERS) -m "not vcan and not realtime"
+	$(BIN)/pytest -m realtime
 
 # Hardware-in-the-loop tests over real SocketCAN vcan: the host's, else user-mode Linux
 # (Debian testing's, fetched, or the system's where that fails), else QEMU; chosen by probe.

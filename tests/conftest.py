@@ -1,5 +1,11 @@
 """Shared test setup: logs go to the captured stdout as JSON lines; hypothesis without a
-per-example deadline.
+per-example deadline; the runtime and browser tests marked ``realtime``.
+
+Why the marker: ``make unit`` runs the CPU-bound tests on every core (pytest-xdist) and
+then the ``realtime`` ones one at a time, because those run the daemon and its twins on
+the wall clock, where a test starved of CPU by its neighbour would see stale inputs that
+are not there. A runtime module that only runs commands on files or faster-than-real-
+time simulations says so with ``pytestmark = pytest.mark.cpu_bound``.
 
 Why no deadline: hypothesis fails an example that takes longer than 200 ms, and on the
 shared 2-core machines CI runs on the hypervisor takes up to 800 ms of CPU in one second.
@@ -23,3 +29,14 @@ settings.load_profile("dbw")
 @pytest.fixture(autouse=True)
 def _json_logs() -> None:
     configure_logging("debug", stream=sys.stdout, json=True)
+
+
+REALTIME_DIRS = ("tests/runtime/", "tests/browser/")
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    for item in items:
+        path = item.path.as_posix()
+        in_realtime_dir = any(f"/{d}" in path for d in REALTIME_DIRS)
+        if in_realtime_dir and item.get_closest_marker("cpu_bound") is None:
+            item.add_marker(pytest.mark.realtime)

@@ -24,6 +24,10 @@ from drivers.lms111.mounted import mount_pose
 from tests.runtime import recordings as shared_recordings
 from tests.runtime.recordings import dbw
 
+# Files and faster-than-real-time runs, no daemon on the clock: run with the unit tests,
+# on every core (see tests/conftest.py).
+pytestmark = pytest.mark.cpu_bound
+
 FLATBED = load_config("flatbed")
 MOUNTS = {
     "left": mount_pose(FLATBED.geometry.scanner_left_mount),

@@ -27,6 +27,10 @@ from tests.runtime.recordings import (
     record,
 )
 
+# Files and faster-than-real-time runs, no daemon on the clock: run with the unit tests,
+# on every core (see tests/conftest.py).
+pytestmark = pytest.mark.cpu_bound
+
 SCANS = 3
 GAPS_M = {"left": 6.0, "right": 10.0}
 

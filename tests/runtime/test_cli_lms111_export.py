@@ -22,6 +22,10 @@ from appliance.sim.scanner_errors import ScannerErrors
 from drivers.lms111.recording import EXPORT_CSV_COLUMNS, read_scans
 from tests.runtime.recordings import FLATBED_MOUNTS, centre_at_gap, dbw, record
 
+# Files and faster-than-real-time runs, no daemon on the clock: run with the unit tests,
+# on every core (see tests/conftest.py).
+pytestmark = pytest.mark.cpu_bound
+
 SCANS = 3
 
 

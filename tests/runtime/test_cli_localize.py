@@ -30,6 +30,10 @@ from tests.runtime.recordings import (
     record,
 )
 
+# Files and faster-than-real-time runs, no daemon on the clock: run with the unit tests,
+# on every core (see tests/conftest.py).
+pytestmark = pytest.mark.cpu_bound
+
 SCANS = 30  # per scanner: 1.2 s at 25 Hz
 SPEED_MPS = 0.2
 START_GAP_M = 8.0
@@ -47,6 +51,7 @@ def centre_in_launcher(t_s: float) -> Pose2D:
 def make_pair(
     folder: Path, site_file: Path | None = None, launcher: Pose2D | None = None
 ) -> dict[str, Path]:
+
     site = load_site(site_file) if site_file is not None else None
     in_site: Callable[[float], Pose2D] = centre_in_launcher
     if launcher is not None:

@@ -20,6 +20,10 @@ from appliance.cli.sim_dock import dock
 from appliance.config import load_config
 from appliance.sim.dock_run import DockRunParams, run_dock
 
+# Files and faster-than-real-time runs, no daemon on the clock: run with the unit tests,
+# on every core (see tests/conftest.py).
+pytestmark = pytest.mark.cpu_bound
+
 # The start area: the front end 10 m out, ±1 m lateral, ±5° heading.
 GRID = [(-1.0, -5.0), (-1.0, 5.0), (1.0, -5.0), (1.0, 5.0)]  # the middle: the CLI test
 
