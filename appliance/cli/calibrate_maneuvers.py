@@ -187,7 +187,8 @@ def _fit_and_merge(
 ) -> None:
     step_name, taken = _samples(config, samples, step_name or None)
     step = STEP_CLASSES[step_name](_context(config, target, extra))
-    report: FitReport = step.fit(taken, raw_data=str(samples))
+    # Absolute: the record is read from elsewhere (k-ratio refits the palm tree from it).
+    report: FitReport = step.fit(taken, raw_data=str(samples.resolve()))
     if as_json:
         click.echo(
             json.dumps(
