@@ -125,6 +125,18 @@ def test_operator_actions_reach_the_twins(bench: SimBench) -> None:
     assert boards.steering._hands_wheel_rad is None
 
 
+def test_the_gear_selector_reverses_the_vehicle_and_the_pc104_still_can(bench: SimBench) -> None:
+    world = bench.world
+    assert handle(bench, {"op": "gear", "reverse": True}) == {"ok": True}
+    assert world.command.reverse
+    assert handle(bench, {"op": "gear", "reverse": False}) == {"ok": True}
+    assert not world.command.reverse
+    world.set_inputs("pc104", reverse=True)  # the PC104's own reverse is not overridden
+    assert world.command.reverse
+    reply = handle(bench, {"op": "gear", "reverse": "yes"})
+    assert not reply["ok"] and "reverse" in reply["error"]
+
+
 def test_fault_switches_and_cables(bench: SimBench) -> None:
     boards, pc104 = bench.boards, bench.pc104
     assert pc104 is not None
