@@ -35,6 +35,17 @@ class Pose:
     reverse: bool = False  # the gear selector
 
 
+def half_turns(start_rad: float, end_rad: float, half_turn_rad: float) -> list[float]:
+    """The wheel's stops from ``start_rad`` towards ``end_rad`` by half turns, ending at
+    ``end_rad`` itself (the lock) however short the last step."""
+    step = math.copysign(half_turn_rad, end_rad - start_rad)
+    stops = [start_rad]
+    while abs(end_rad - stops[-1]) > half_turn_rad + 1e-9:
+        stops.append(stops[-1] + step)
+    stops.append(end_rad)
+    return stops
+
+
 def pot_map_schedule(
     lock_rad: float,
     *,
@@ -49,10 +60,7 @@ def pot_map_schedule(
     Right is negative (left positive, as everywhere in dbw). The rest back at full right
     is at least ``final_rest_s``, as the command's instructions ask: it is how the
     command knows the sweep is over."""
-    stops = [-lock_rad]
-    while stops[-1] + half_turn_rad < lock_rad - 1e-9:
-        stops.append(stops[-1] + half_turn_rad)
-    stops.append(lock_rad)
+    stops = half_turns(-lock_rad, lock_rad, half_turn_rad)
     stops += stops[-2::-1]  # back to full right through the same stops
     poses: list[Pose] = []
     t_s, wheel = 0.0, 0.0
@@ -120,10 +128,7 @@ def palm_tree_schedule(
     The stops between arcs are the technician's: the wheel is only turned with the vehicle
     standing, so every arc is driven at one held angle (the fit cuts arcs where it moves).
     """
-    stops = [lock_rad]
-    while stops[-1] - half_turn_rad > -lock_rad + 1e-9:
-        stops.append(stops[-1] - half_turn_rad)
-    stops.append(-lock_rad)
+    stops = half_turns(lock_rad, -lock_rad, half_turn_rad)
     poses: list[Pose] = []
     t_s, wheel = 0.0, 0.0
     for stop in stops:
