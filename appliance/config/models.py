@@ -11,12 +11,14 @@ of mistake that must not reach a nine-ton vehicle.
 from __future__ import annotations
 
 import ipaddress
+import math
 from datetime import UTC, datetime
 from enum import StrEnum
 from typing import Annotated, Literal, Self
 
 from pydantic import AwareDatetime, BaseModel, ConfigDict, Field, field_validator, model_validator
 
+from drivers.actuators.steering_model import ServoParams
 from drivers.gnss.client import BAUDRATES_BPS as GNSS_BAUDRATES_BPS
 from drivers.pc104.endpoint import SLCAN_BITRATES_BPS, CanInterface
 from drivers.ptylink import SIM_PORT_PREFIX
@@ -593,6 +595,20 @@ class VehicleConfig(_Model):
     operator_page: OperatorPageSettings = OperatorPageSettings()
     simulation: Simulation = Simulation(enabled=False)
 
+    def _linkage_within_the_steering_limit(self) -> None:
+        """The simulated linkage must not turn the tyre past the vehicle's steering limit
+        at the wheel's lock: the simulated vehicle clamps its tyres there, so the linkage
+        a calibration measured would not be the one configured."""
+        servo = ServoParams()
+        cubic = self.simulation.steering.linkage_cubic
+        lock_deg = math.degrees(servo.wheel_limit_rad / servo.steering_ratio * (1.0 + cubic))
+        if lock_deg > self.limits.max_steer_angle_deg:
+            raise ValueError(
+                f"simulation.steering.linkage_cubic = {cubic} turns the simulated tyre to "
+                f"{lock_deg:.1f} deg at the wheel's lock, past limits.max_steer_angle_deg "
+                f"({self.limits.max_steer_angle_deg} deg): lower it"
+            )
+
     @model_validator(mode="after")
     def _cross_checks(self) -> Self:
         if not self.simulation.enabled:
@@ -616,6 +632,8 @@ class VehicleConfig(_Model):
                     "simulation.enabled is false: set the receiver's serial device "
                     "(e.g. /dev/serial/by-id/...) or enable the simulation"
                 )
+        if self.simulation.enabled and self.simulation.steering.linkage_cubic != 0.0:
+            self._linkage_within_the_steering_limit()
         if self.engagement.max_set_speed_mps > self.limits.max_speed_mps:
             raise ValueError(
                 "engagement.max_set_speed_mps must not exceed limits.max_speed_mps "

@@ -9,6 +9,7 @@ from pathlib import Path
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from pydantic import ValidationError
 
 from appliance.config import BUILTIN_PROFILES, ConfigError, VehicleConfig, load_config, parse_config
 from appliance.config.models import VehicleKind
@@ -176,3 +177,18 @@ def test_lms111_mode_the_device_does_not_have_is_refused() -> None:
         "[devices.lms111_left]\nscan_frequency_hz = 50\nangular_resolution_deg = 0.25\n"
     )
     assert any("50 Hz with 0.25 deg" in m for m in problems.values())
+
+
+def test_a_simulated_linkage_past_the_steering_limit_is_refused() -> None:
+    """At 8 % the simulated tyre would reach 32.4 deg at the wheel's lock, past the Husky's
+    32 deg limit where the simulated vehicle clamps it: the configured linkage would not
+    be the one a calibration sees."""
+    config = load_config("husky-sim")
+    steering = config.simulation.steering.model_copy(update={"linkage_cubic": 0.08})
+    data = config.model_copy(
+        update={"simulation": config.simulation.model_copy(update={"steering": steering})}
+    ).model_dump()
+    with pytest.raises(ValidationError, match="linkage_cubic"):
+        VehicleConfig.model_validate(data)
+    data["simulation"]["steering"]["linkage_cubic"] = 0.06
+    assert VehicleConfig.model_validate(data).simulation.steering.linkage_cubic == 0.06
