@@ -35,6 +35,7 @@ from appliance.routes import (
     min_turn_radius_m,
     routes_dir,
 )
+from appliance.routes.store import ROUTE_SUFFIX
 from drivers.geometry import Pose2D
 from drivers.gnss.sentences import FixQuality
 from drivers.pc104.messages import MotionPattern
@@ -87,6 +88,7 @@ class RouteAutopilot:
         self._last_speed_mps = 0.0
         self._last_steer_rad = 0.0
         self._last_pose: Pose2D | None = None
+        self._points_cache: dict[str, tuple[tuple[int, int, int], np.ndarray | None]] = {}
         if config.route.selected:
             self.select(config.route.selected)
 
@@ -179,6 +181,43 @@ class RouteAutopilot:
             "radius_m": radius_m,
         }
 
+    def _stored_points(self) -> dict[str, np.ndarray]:
+        """Every readable stored route's points, parsed again only when its file changed.
+
+        Why the cache: the status (asked for by `dbw status`, the operator page, the
+        heartbeat) lists the routes nearby, and it runs on the event loop; parsing every
+        route file on every call would stall the loop for as long as the files take. A
+        stat per file stays: a route recorded or replaced while the daemon runs is seen.
+        """
+        directory = self.store.directory
+        try:
+            paths = sorted(directory.glob(f"*{ROUTE_SUFFIX}"))
+        except OSError:
+            return {}
+        cache = self._points_cache
+        seen: dict[str, np.ndarray] = {}
+        for path in paths:
+            name = path.name[: -len(ROUTE_SUFFIX)]
+            if name.startswith("."):
+                continue  # the atomic writer's temporary files
+            try:
+                stat = path.stat()
+            except OSError:
+                continue
+            key = (stat.st_ino, stat.st_mtime_ns, stat.st_size)  # atomic writes: a new inode
+            cached = cache.get(name)
+            if cached is None or cached[0] != key:
+                try:
+                    points: np.ndarray | None = self.store.load(name).points_enu_m(self.frame)
+                except (RouteFileError, OSError, ValueError):
+                    points = None  # unreadable: listed by `dbw route list`, not nearby
+                cached = cache[name] = (key, points)
+            if cached[1] is not None:
+                seen[name] = cached[1]
+        for gone in set(cache) - {p.name[: -len(ROUTE_SUFFIX)] for p in paths}:
+            del cache[gone]
+        return seen
+
     def nearby(self) -> list[dict[str, Any]]:
         """Stored routes near the vehicle's last pose, nearest first, and whether
         engagement would be allowed by distance and heading (for `dbw status`)."""
@@ -186,13 +225,7 @@ class RouteAutopilot:
         if pose is None:
             return []
         found = []
-        for stored in self.store.list():
-            if stored.error is not None:
-                continue
-            try:
-                points = self.store.load(stored.name).points_enu_m(self.frame)
-            except (RouteFileError, OSError, ValueError):
-                continue
+        for name, points in self._stored_points().items():
             distance, heading_error = _distance_and_heading(points, pose)
             allowed = (
                 distance <= self.params.engage_max_distance_m
@@ -200,7 +233,7 @@ class RouteAutopilot:
             )
             found.append(
                 {
-                    "name": stored.name,
+                    "name": name,
                     "distance_m": round(distance, 1),
                     "heading_error_deg": round(math.degrees(heading_error), 1),
                     "engage_allowed": allowed,

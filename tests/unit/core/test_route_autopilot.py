@@ -7,6 +7,7 @@ import math
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from appliance.config import load_config
 from appliance.config.models import VehicleConfig
@@ -162,6 +163,39 @@ def test_nearby_routes_are_listed_nearest_first_with_the_engagement_verdict(tmp_
     assert nearby[0]["engage_allowed"] and math.isclose(float(nearby[0]["distance_m"]), 2.0)
     assert not nearby[1]["engage_allowed"]  # 28 m away
     assert not nearby[2]["engage_allowed"] and nearby[2]["heading_error_deg"] == 90.0
+
+
+def test_nearby_parses_a_route_file_once_until_it_changes(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The status asks for the routes nearby on the event loop: unchanged files are not
+    read again; a new, replaced or removed route is seen at the next call."""
+    store_with(tmp_path, "near", straight())
+    store_with(tmp_path, "far", straight(north_m=30.0))
+    source = RouteAutopilot(route_config(tmp_path, selected="near"))
+    drive_cycles(source, 60.0, 2.0)
+    loads: list[str] = []
+    real_load = source.store.load
+    monkeypatch.setattr(source.store, "load", lambda name: loads.append(name) or real_load(name))
+    assert [r["name"] for r in source.nearby()] == ["near", "far"]
+    assert sorted(loads) == ["far", "near"]
+    for _ in range(5):
+        source.nearby()
+    assert sorted(loads) == ["far", "near"]  # nothing read again
+    RouteStore(tmp_path).save(
+        Route.from_enu(
+            "far",
+            straight(north_m=1.0),
+            LocalFrame(ORIGIN["lat_deg"], ORIGIN["lon_deg"], ORIGIN["alt_m"]),
+        ),
+        overwrite=True,
+    )
+    store_with(tmp_path, "new", straight(north_m=10.0))
+    (tmp_path / "near.geojson").unlink()
+    nearby = source.nearby()
+    assert [r["name"] for r in nearby] == ["far", "new"]
+    assert math.isclose(float(nearby[0]["distance_m"]), 1.0)
+    assert sorted(loads) == ["far", "far", "near", "new"]
 
 
 def test_the_route_window_holds_the_selected_routes_points_near_the_vehicle(
