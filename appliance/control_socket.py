@@ -24,7 +24,7 @@ import os
 import socket
 import stat
 import struct
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Final, Protocol
@@ -387,30 +387,42 @@ class ControlServer:
         return self._command(request.name, session)
 
     def _maneuver(self, request: ManeuverRequest, session: _Session) -> dict[str, Any]:
-        try:
-            accepted, message = self.api.maneuver(request.action, request.step)
-        except Exception as exc:
-            log.error("maneuver", step=request.step, error=repr(exc), exc_info=exc)
-            return error_reply(f"the daemon failed to {request.action} {request.step!r}: {exc!r}")
-        log.info(
+        return self._verdict(
             "maneuver",
+            f"{request.action} {request.step!r}",
+            lambda: self.api.maneuver(request.action, request.step),
+            session,
             action=request.action,
             step=request.step,
-            verdict="accepted" if accepted else "refused",
-            message=message,
-            **session.peer.as_log_fields(),
         )
-        return {"ok": True, "accepted": bool(accepted), "message": str(message)}
 
     def _select_route(self, name: str, session: _Session) -> dict[str, Any]:
-        try:
-            accepted, message = self.api.select_route(name)
-        except Exception as exc:
-            log.error("route_select", route=name, error=repr(exc), exc_info=exc)
-            return error_reply(f"the daemon failed to select route {name!r}: {exc!r}")
-        log.info(
+        return self._verdict(
             "route_select",
+            f"select route {name!r}",
+            lambda: self.api.select_route(name),
+            session,
             route=name,
+        )
+
+    def _verdict(
+        self,
+        event: str,
+        doing: str,
+        call: Callable[[], tuple[bool, str]],
+        session: _Session,
+        **fields: Any,
+    ) -> dict[str, Any]:
+        """A request the daemon accepts or refuses with a reason: logged with who asked, and
+        answered; an exception in the daemon is an error reply, never a dropped session."""
+        try:
+            accepted, message = call()
+        except Exception as exc:
+            log.error(event, error=repr(exc), exc_info=exc, **fields)
+            return error_reply(f"the daemon failed to {doing}: {exc!r}")
+        log.info(
+            event,
+            **fields,
             verdict="accepted" if accepted else "refused",
             message=message,
             **session.peer.as_log_fields(),
