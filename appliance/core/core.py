@@ -351,10 +351,10 @@ class ControlCore:
         if nearby is not None:  # the route source: routes near the vehicle, engageable?
             document["routes_nearby"] = nearby()
         pilot = document.get("autopilot")
-        for extra, key in (("route_window", "route_window"), ("launcher", "launcher")):
+        for extra in ("route_window", "launcher"):
             method = getattr(self.autopilot, extra, None)
             if method is not None and isinstance(pilot, dict):  # for the operator page
-                pilot[key] = method()
+                pilot[extra] = method()
         maneuver = self.maneuver.status()
         if maneuver is not None:
             document["maneuver"] = maneuver
