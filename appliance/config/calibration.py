@@ -313,8 +313,8 @@ class Calibration:
         still points the right way and the servo's own limits stop it.
         """
         coeffs = self.wheel_to_tyre_coeffs
-        if coeffs is None:
-            return tyre_rad * self.steering_ratio
+        if coeffs is None or not math.isfinite(tyre_rad):
+            return tyre_rad * self.steering_ratio  # NaN stays NaN: never a made-up angle
         low, high = self.valid_wheel_range_rad
         tyre_low, tyre_high = self.tyre_rad_from_wheel(low), self.tyre_rad_from_wheel(high)
         if tyre_rad <= tyre_low:

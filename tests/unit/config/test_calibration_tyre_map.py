@@ -66,3 +66,8 @@ def test_too_many_coefficients_are_refused() -> None:
         calfile_text({"steering.wheel_to_tyre_coeffs": f"[{C1!r}" + ", 0.0" * 7 + "]"})
     )
     assert any("wheel_to_tyre_coeffs" in field for field in problems), problems
+
+
+@pytest.mark.parametrize("tyre_rad", [math.nan, math.inf, -math.inf])
+def test_a_non_finite_tyre_angle_gives_no_finite_wheel_angle(tyre_rad: float) -> None:
+    assert not math.isfinite(mapped().wheel_rad_from_tyre(tyre_rad))
