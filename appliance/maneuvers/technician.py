@@ -146,7 +146,7 @@ def palm_tree_schedule(
 
 
 def steady_turns_schedule(
-    wheels_rad: Sequence[float] = (HALF_TURN_RAD, -HALF_TURN_RAD),
+    wheels_rad: Sequence[float] = (2 * HALF_TURN_RAD, -2 * HALF_TURN_RAD),
     *,
     rate_rad_per_s: float = 2.0,
     turn_s: float = 14.0,
@@ -157,9 +157,11 @@ def steady_turns_schedule(
     brake_pct: float = 60.0,
     step_s: float = 0.05,
 ) -> list[Pose]:
-    """The k ratio's turning tests: at a standstill the wheel to each of ``wheels_rad``,
-    a steady circle at a walking pace for ``turn_s``, braked to a stop. Then the wheel
-    back to the centre, hands off."""
+    """The k ratio's turning tests: at a standstill the wheel to each of ``wheels_rad``
+    (a full turn each way by default, as the command asks: k from a turn errs by the tyre
+    map's error over the tyre angle, so the larger angle halves it), a steady circle at a
+    walking pace for ``turn_s``, braked to a stop. Then the wheel back to the centre,
+    hands off."""
     poses: list[Pose] = []
     t_s, wheel = 0.0, 0.0
     for target in wheels_rad:

@@ -256,7 +256,7 @@ async def test_pot_centre_then_pot_map_recover_the_hidden_installation(tmp_path:
             )
         )
         await tapping(command, daemon)
-        turns = technician.steady_turns_schedule((2 * math.pi, -2 * math.pi), turn_s=14.0)
+        turns = technician.steady_turns_schedule(turn_s=14.0)  # a full turn each way
         result = await acted_out(command, twins.path, turns)
         print(result.output)
         assert result.exit_code == 0, result.output
