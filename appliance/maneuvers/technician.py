@@ -128,21 +128,14 @@ def palm_tree_schedule(
     The stops between arcs are the technician's: the wheel is only turned with the vehicle
     standing, so every arc is driven at one held angle (the fit cuts arcs where it moves).
     """
-    stops = half_turns(lock_rad, -lock_rad, half_turn_rad)
-    poses: list[Pose] = []
-    t_s, wheel = 0.0, 0.0
-    for stop in stops:
-        t_s, wheel = _ramp(poses, t_s, wheel, stop, rate_rad_per_s, step_s)
-        for reverse in (False, True) if back_up else (False,):
-            poses.append(Pose(t_s, wheel, launch_pct, 0.0, reverse))
-            poses.append(Pose(t_s + launch_s, wheel, cruise_pct, 0.0, reverse))
-            t_s += arc_s
-            poses.append(Pose(t_s, wheel, 0.0, brake_pct, reverse))
-            t_s += brake_s
-        poses.append(Pose(t_s, wheel, 0.0, 0.0, False))
-    t_s, wheel = _ramp(poses, t_s, wheel, 0.0, rate_rad_per_s, step_s)
-    poses.append(Pose(t_s + 0.5, None))
-    return poses
+    return _drives_at(
+        half_turns(lock_rad, -lock_rad, half_turn_rad),
+        drive_s=arc_s,
+        back_up=back_up,
+        pace=_Pace(launch_pct, launch_s, cruise_pct, brake_s, brake_pct),
+        rate_rad_per_s=rate_rad_per_s,
+        step_s=step_s,
+    )
 
 
 def steady_turns_schedule(
@@ -162,15 +155,49 @@ def steady_turns_schedule(
     map's error over the tyre angle, so the larger angle halves it), a steady circle at a
     walking pace for ``turn_s``, braked to a stop. Then the wheel back to the centre,
     hands off."""
+    return _drives_at(
+        wheels_rad,
+        drive_s=turn_s,
+        back_up=False,
+        pace=_Pace(launch_pct, launch_s, cruise_pct, brake_s, brake_pct),
+        rate_rad_per_s=rate_rad_per_s,
+        step_s=step_s,
+    )
+
+
+@dataclass(frozen=True)
+class _Pace:
+    """How the technician drives off and stops: pressed to get going, eased to a pace."""
+
+    launch_pct: float
+    launch_s: float
+    cruise_pct: float
+    brake_s: float
+    brake_pct: float
+
+
+def _drives_at(
+    wheels_rad: Sequence[float],
+    *,
+    drive_s: float,
+    back_up: bool,
+    pace: _Pace,
+    rate_rad_per_s: float,
+    step_s: float,
+) -> list[Pose]:
+    """At each wheel angle, turned at a standstill: a drive of ``drive_s`` at ``pace``,
+    braked to a stop (and the same back in reverse with ``back_up``). Then the wheel back
+    to the centre, hands off. The palm tree's arcs and the k ratio's turns alike."""
     poses: list[Pose] = []
     t_s, wheel = 0.0, 0.0
     for target in wheels_rad:
         t_s, wheel = _ramp(poses, t_s, wheel, target, rate_rad_per_s, step_s)
-        poses.append(Pose(t_s, wheel, launch_pct))
-        poses.append(Pose(t_s + launch_s, wheel, cruise_pct))
-        t_s += turn_s
-        poses.append(Pose(t_s, wheel, 0.0, brake_pct))
-        t_s += brake_s
+        for reverse in (False, True) if back_up else (False,):
+            poses.append(Pose(t_s, wheel, pace.launch_pct, 0.0, reverse))
+            poses.append(Pose(t_s + pace.launch_s, wheel, pace.cruise_pct, 0.0, reverse))
+            t_s += drive_s
+            poses.append(Pose(t_s, wheel, 0.0, pace.brake_pct, reverse))
+            t_s += pace.brake_s
         poses.append(Pose(t_s, wheel))
     t_s, wheel = _ramp(poses, t_s, wheel, 0.0, rate_rad_per_s, step_s)
     poses.append(Pose(t_s + 0.5, None))
