@@ -135,10 +135,15 @@ async def test_the_daemon_follows_the_route_and_a_lost_fix_hands_steering_back()
         await until(lambda: not daemon.core.engage_blockers(), 20.0, daemon, "engageable again")
 
 
-async def test_dbw_route_record_keeps_the_path_the_operator_drove(tmp_path: Path) -> None:
+async def test_dbw_route_record_keeps_the_path_the_operator_drove(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
     """The operator drives a gentle arc on the pedal and the wheel, not engaged, while
     `dbw route record` runs against the daemon; the stored route lies on the path the
     anchor took in the simulated world."""
+    # A refused recording is kept in the current directory: here, not in the checkout
+    # (one such run once left drive.geojson files in the repository).
+    monkeypatch.chdir(tmp_path)
     config = route_config()
     origin = config.positioning.origin
     assert origin is not None
