@@ -23,6 +23,8 @@ only the ratio still reads the right one near the centre.
 
 ``[items.<step>]`` records how each maneuver's result was obtained (method, date, tool
 version, residuals, verdict, raw data): :mod:`appliance.config.calibration_items`.
+The optional ``[pedals.throttle]`` and ``[pedals.brake]`` are the pedal sweep's maps:
+:mod:`appliance.config.calibration_pedals`.
 
 Reading and writing the file is :mod:`appliance.config.calibration_file`; the map's
 polynomial and its fit are :mod:`calibration.pot_map`; the scanner fit is
@@ -48,6 +50,7 @@ from pydantic import (
 )
 
 from appliance.config.calibration_items import CalibrationItems
+from appliance.config.calibration_pedals import PedalsCalibration
 from calibration.pot_map import (
     MAX_POT_TO_WHEEL_COEFFS,
     wheel_rad_at,
@@ -227,6 +230,7 @@ class CalibrationFile(_Model):
     counter_steer: CounterSteerCalibration | None = None
     guidance: GuidanceCalibration | None = None
     scanners: ScannersCalibration | None = None
+    pedals: PedalsCalibration | None = None  # the pedal maps (calibration_pedals)
     # Which dbw wrote the file, and how each maneuver's result was obtained (optional:
     # hand-written and older files have neither).
     tool_version: str | None = Field(None, min_length=1, max_length=40)
@@ -254,6 +258,7 @@ class Calibration:
     counter_steer_k_ratio: float | None = None
     guidance_look_ahead_m: float | None = None
     scanners: ScannersCalibration | None = None
+    pedals: PedalsCalibration | None = None
 
     @classmethod
     def from_file(cls, model: CalibrationFile) -> Calibration:
@@ -275,6 +280,7 @@ class Calibration:
             counter_steer_k_ratio=model.counter_steer.k_ratio if model.counter_steer else None,
             guidance_look_ahead_m=model.guidance.look_ahead_m if model.guidance else None,
             scanners=model.scanners,
+            pedals=model.pedals,
         )
 
     def scanner(self, name: str) -> ScannerCalibrationEntry | None:

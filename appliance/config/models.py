@@ -18,6 +18,7 @@ from typing import Annotated, Literal, Self
 
 from pydantic import AwareDatetime, BaseModel, ConfigDict, Field, field_validator, model_validator
 
+from appliance.config.pedal_models import PedalSweepSettings, SimPedals
 from drivers.actuators.steering_model import ServoParams
 from drivers.gnss.client import BAUDRATES_BPS as GNSS_BAUDRATES_BPS
 from drivers.pc104.endpoint import SLCAN_BITRATES_BPS, CanInterface
@@ -562,6 +563,7 @@ class Simulation(_Model):
     # Draws each scanner's systematic and mount errors (one vehicle per seed), and its noise.
     scanner_seed: int = Field(1, ge=0, le=2**32 - 1)
     steering: SimSteering = SimSteering()
+    pedals: SimPedals = SimPedals()
     # The simulated GNSS/INS receiver's white position noise per horizontal axis (what
     # its GST reports): 5 cm, a clean RTK receiver; the calibration figures use 2 cm.
     gnss_sigma_m: float = Field(0.05, ge=0.0, le=10.0)
@@ -582,6 +584,7 @@ class VehicleConfig(_Model):
     docking: Docking = Docking()
     positioning: Positioning = Positioning()
     route: RouteFollowing = RouteFollowing()
+    pedal_sweep: PedalSweepSettings = PedalSweepSettings()
     # How speed is commanded: "pc104" sends a speed set-point to the vehicle's own PC104
     # (the flat-bed); "pedals" closes the speed loop here on the throttle and brake
     # actuators (the Husky, whose engine throttle was its autopilot's speed control).
@@ -607,6 +610,33 @@ class VehicleConfig(_Model):
                 f"simulation.steering.linkage_cubic = {cubic} turns the simulated tyre to "
                 f"{lock_deg:.1f} deg at the wheel's lock, past limits.max_steer_angle_deg "
                 f"({self.limits.max_steer_angle_deg} deg): lower it"
+            )
+
+    def _pedal_sweep_within_the_limits(self) -> None:
+        """The sweep asks for nothing the safety limiter would clamp: a clamped level is
+        not the level the fit files the samples under."""
+        sweep, limits = self.pedal_sweep, self.limits
+        if sweep.throttle_levels_pct[-1] > limits.throttle_max_pct:
+            raise ValueError(
+                f"pedal_sweep.throttle_levels_pct goes to {sweep.throttle_levels_pct[-1]}, "
+                f"past limits.throttle_max_pct ({limits.throttle_max_pct})"
+            )
+        if max(sweep.brake_levels_pct[-1], sweep.hold_brake_pct) > limits.brake_max_pct:
+            raise ValueError(
+                "pedal_sweep's brake levels (and hold_brake_pct) must not pass "
+                f"limits.brake_max_pct ({limits.brake_max_pct})"
+            )
+        if sweep.top_speed_mps > limits.max_speed_mps:
+            raise ValueError(
+                f"pedal_sweep.top_speed_mps ({sweep.top_speed_mps}) must not exceed "
+                f"limits.max_speed_mps ({limits.max_speed_mps})"
+            )
+        top_set = self.engagement.max_set_speed_mps
+        if self.engagement.hold_to_move and sweep.top_speed_mps > top_set:
+            # The released button's stop distance is worked out from the top set speed.
+            raise ValueError(
+                f"pedal_sweep.top_speed_mps ({sweep.top_speed_mps}) must not exceed "
+                f"engagement.max_set_speed_mps ({top_set}) under hold-to-move"
             )
 
     @model_validator(mode="after")
@@ -670,6 +700,8 @@ class VehicleConfig(_Model):
                 'speed_path = "pedals" drives the throttle and brake actuators and uses no '
                 "PC104: remove [devices.can] (a vehicle without a PC104 has no CAN link)"
             )
+        if self.speed_path == "pedals":  # the only path with pedals of ours to sweep
+            self._pedal_sweep_within_the_limits()
         control_period_s = 1.0 / self.rates.control_hz
         if self.supervision.control_heartbeat_deadline_s < 2 * control_period_s:
             raise ValueError(

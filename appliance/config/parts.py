@@ -18,6 +18,7 @@ from appliance.config.models import Engagement, Limits, SafetyTimeouts, Stalenes
 from appliance.guidance.dock_source import DockSourceParams, DockZone
 from appliance.guidance.docking import DockingParams
 from appliance.guidance.pedal_speed import PedalSpeedParams
+from appliance.guidance.pedal_sweep import PedalSweepParams
 from appliance.localization.launcher_localizer import LocalizerParams, ScannerSetup
 from appliance.localization.launcher_map import LauncherMap
 from appliance.perception.features import FeatureParams
@@ -153,6 +154,19 @@ def pedal_speed_params(config: VehicleConfig) -> PedalSpeedParams:
     )
     stop_pct = min(needed_mps2 / params.decel_per_brake_pct_mps2, params.brake_max_pct)
     return replace(params, stop_brake_pct=max(params.stop_brake_pct, stop_pct))
+
+
+def pedal_sweep_params(config: VehicleConfig) -> PedalSweepParams:
+    sweep = config.pedal_sweep
+    return PedalSweepParams(
+        throttle_levels_pct=sweep.throttle_levels_pct,
+        brake_levels_pct=sweep.brake_levels_pct,
+        top_speed_mps=sweep.top_speed_mps,
+        coast_s=sweep.coast_s,
+        max_throttle_s=sweep.max_throttle_s,
+        hold_brake_pct=sweep.hold_brake_pct,
+        coast_down_end_mps=sweep.speed_band_edges_mps[0],
+    )
 
 
 def pc104_client_params(config: VehicleConfig) -> ClientParams:

@@ -205,9 +205,18 @@ class CommandPaths:
             # Deny by default: an unknown speed makes the controller brake (its FAULT), and
             # a stop wish or a reverse one (this path drives forward only) stops.
             stop = stopping or wish.reverse or wish.pattern is MotionPattern.STOP
-            measured = m.speed_mps if m.speed_mps is not None else math.nan
-            pedal = controller.update(speed_setpoint, measured, None, now_s, stop_requested=stop)
-            request = ActuatorCommand(None, pedal.throttle_pct, pedal.brake_pct)
+            if wish.pedals_pct is not None and not stop:
+                # A source that drives the pedals itself (the pedal sweep): its levels,
+                # through the same arbitration and limits; the controller starts afresh
+                # when it has the pedals again.
+                controller.reset()
+                request = ActuatorCommand(None, *wish.pedals_pct)
+            else:
+                measured = m.speed_mps if m.speed_mps is not None else math.nan
+                pedal = controller.update(
+                    speed_setpoint, measured, None, now_s, stop_requested=stop
+                )
+                request = ActuatorCommand(None, pedal.throttle_pct, pedal.brake_pct)
         elif controller is not None:
             controller.reset()  # not ours this cycle: start afresh when it is again
         chosen = arbitrate(operator, False, request, False, ours) or RELEASED

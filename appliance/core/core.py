@@ -48,6 +48,7 @@ from appliance.core.observe import (
 from appliance.core.output import CoreOutput, Note
 from appliance.core.panel import PanelDecoder, PanelEvents
 from appliance.core.report import core_status
+from appliance.guidance.pedal_sweep import PedalSweep, SweepCommand
 from appliance.modes import (
     AUTOMATIC_MODES,
     Action,
@@ -148,6 +149,9 @@ class ControlCore:
         # The calibration maneuvers' tap: kept across a core restart (it only reads; the
         # samples show the mode the core restarted in, and a fault on the way ends a run).
         self.maneuver = ManeuverTap()
+        # The pedal sweep (`dbw calibrate pedals`): the one maneuver that drives, armed by
+        # its maneuver request, its wish judged like any source's.
+        self.sweep = PedalSweep(parts.pedal_sweep_params(config)) if self.pedals else None
         self.reset()
 
     def reset(self) -> None:
@@ -179,6 +183,9 @@ class ControlCore:
         self.last_output: CoreOutput | None = None
         self.last_refusal: tuple[str, ...] = ()
         self.stale: tuple[str, ...] = ()
+        # A restart disarms the sweep: the client sees it and ends the run.
+        self.sweeping = False
+        self.last_sweep: SweepCommand | None = None
 
     # ---- the cycle --------------------------------------------------------------------
     def step(self, inputs: ControlInputs, now_s: float) -> CoreOutput:
@@ -247,7 +254,8 @@ class ControlCore:
         self._notes = []
         self.last_output = output
         if self.maneuver.active:
-            self.maneuver.update(inputs, fresh, m, output, stale, self.faults.active_faults)
+            sweep = self.last_sweep if self.sweeping else None
+            self.maneuver.update(inputs, fresh, m, output, stale, self.faults.active_faults, sweep)
         return output
 
     # ---- bench requests (the control socket) -------------------------------------------
@@ -323,9 +331,25 @@ class ControlCore:
         Only reads: the mode machine and the safety layer stay as they are. Told to the
         request listeners, so replay taps the same cycles."""
         if action == "start":
-            accepted, message = self.maneuver.start(step, now_s)
+            refusal = self._sweep_refusal(now_s) if step == "pedals" else None
+            if refusal is not None:
+                accepted, message = False, refusal
+            else:
+                accepted, message = self.maneuver.start(step, now_s)
+            if accepted and step == "pedals" and self.sweep is not None:
+                self.sweep.reset()
+                self.sweeping = True
+                message += "; the pedal sweep is armed: engage, then SPEED + to run it"
         elif action == "stop":
             accepted, message = self.maneuver.stop(now_s)
+            if accepted and self.sweeping:
+                self.sweeping = False
+                if self.state.mode in AUTOMATIC_MODES:
+                    # Not left to the speed controller at whatever set speed: the sweep
+                    # ends standing, and the vehicle goes back to the operator.
+                    self._note("operator_override", what="pedal sweep ended")
+                    self._apply(ManualOverridePressed(), now_s)
+                message += "; the pedal sweep is disarmed"
         else:
             accepted, message = False, f"unknown maneuver action {action!r}: start or stop"
         if accepted:
@@ -333,6 +357,23 @@ class ControlCore:
         for listener in self.request_listeners:
             listener("maneuver", f"{action}:{step}", now_s, accepted, message)
         return accepted, message
+
+    def _sweep_refusal(self, now_s: float) -> str | None:
+        """Why the pedal sweep may not be armed now (None: it may): only on the pedals
+        path, from READY (not engaged: the operator engages knowingly, after), standing."""
+        if self.sweep is None:
+            return (
+                'the pedal sweep needs speed_path = "pedals" (here the PC104 closes the speed loop)'
+            )
+        if self.state.mode is not Mode.READY:
+            return f"the pedal sweep starts from READY, not {self.state.mode}"
+        m = self._measured
+        speed = None if m is None else m.speed_mps
+        if speed is None or not math.isfinite(speed):
+            return "the pedal sweep needs a measured speed (is the GNSS/INS fixed?)"
+        if abs(speed) > self.sweep.params.stopped_mps * 2.0:
+            return f"the pedal sweep starts standing (moving at {abs(speed):.2f} m/s)"
+        return None
 
     def engage_blockers(self) -> tuple[str, ...]:
         """Why an engage press would be refused now (empty: it would be accepted), judged
@@ -358,6 +399,8 @@ class ControlCore:
         maneuver = self.maneuver.status()
         if maneuver is not None:
             document["maneuver"] = maneuver
+        if self.sweeping and self.last_sweep is not None:
+            document["pedal_sweep"] = self.last_sweep.as_status()
         pedal = self.commands.last_pedal
         if self.pedals:  # what the throttle/brake speed controller is doing, and why
             # No PC104 on this vehicle: the STOP frame nobody receives is not a command.
@@ -419,6 +462,8 @@ class ControlCore:
         self._notes.append(Note(event, fields))
 
     def _wish(self, m: Measurements, inputs: ControlInputs, now_s: float) -> AutopilotWish:
+        if self.sweeping and self.sweep is not None:
+            return self._sweep_wish(m, now_s, self.sweep)
         engaged = self.state.mode in AUTOMATIC_MODES
         observation = Observation(
             now_s,
@@ -433,6 +478,22 @@ class ControlCore:
             return self.autopilot.update(observation)
         except Exception as exc:  # a broken source must not take the safety layer with it
             return AutopilotWish(ready=False, reason=f"{type(exc).__name__}: {exc}")
+
+    def _sweep_wish(self, m: Measurements, now_s: float, sweep: PedalSweep) -> AutopilotWish:
+        """While the sweep is armed it is the source: straight ahead, its pedals. It has
+        the pedals only in SPEED_HOLD with hold-to-move held (where asked for); judged on
+        the mode the cycle starts in, the cycle's own events (a brake tap) still take them
+        away before any command goes out."""
+        held = self._held or not self.config.engagement.hold_to_move
+        in_control = self.state.mode is Mode.SPEED_HOLD and held
+        command = sweep.update(m.speed_mps, now_s, in_control)
+        self.last_sweep = command
+        return AutopilotWish(
+            ready=True,
+            steer_tyre_rad=0.0,
+            pedals_pct=(command.throttle_pct, command.brake_pct) if in_control else None,
+            status={"pedal_sweep": command.as_status()},
+        )
 
     def _engage_conditions(
         self,

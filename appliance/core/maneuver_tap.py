@@ -25,6 +25,7 @@ from typing import Any, Final
 from appliance.core.inputs import ControlInputs
 from appliance.core.observe import Measurements
 from appliance.core.output import CoreOutput
+from appliance.guidance.pedal_sweep import SweepCommand
 from appliance.localization.gnss_pose import GnssPose
 from drivers.actuators.messages import SteeringMode
 
@@ -62,6 +63,9 @@ class ManeuverSample:
     gnss_speed_mps: float | None
     sigma_m: float | None
     fix_quality: str | None
+    # The pedal sweep's phase and run (0-based), while it is armed; None otherwise.
+    sweep_phase: str | None = None
+    sweep_run: int | None = None
 
     def as_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -82,6 +86,7 @@ def make_sample(
     output: CoreOutput,
     stale: Iterable[str],
     faults: Iterable[str],
+    sweep: SweepCommand | None = None,
 ) -> ManeuverSample:
     """One cycle's sample: raw readings where fresh, and what the core commanded."""
     steering = inputs.steering if "steering.pot" in fresh else None
@@ -116,6 +121,8 @@ def make_sample(
         gnss_speed_mps=None if gnss is None else _finite(gnss.speed_mps),
         sigma_m=None if gnss is None else _finite(gnss.sigma_worst_m),
         fix_quality=None if gnss is None else str(gnss.quality),
+        sweep_phase=None if sweep is None else str(sweep.phase),
+        sweep_run=None if sweep is None else sweep.run,
     )
 
 
@@ -168,10 +175,11 @@ class ManeuverTap:
         output: CoreOutput,
         stale: Iterable[str],
         faults: Iterable[str],
+        sweep: SweepCommand | None = None,
     ) -> None:
         if not self.active:
             return
-        sample = make_sample(self.next_seq, inputs, fresh, measured, output, stale, faults)
+        sample = make_sample(self.next_seq, inputs, fresh, measured, output, stale, faults, sweep)
         self.next_seq += 1
         self._ring.append(sample)
         for listener in self.listeners:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from appliance.maneuvers.k_ratio_step import KRatioStep
 from appliance.maneuvers.palm_tree_step import PalmTreeStep
+from appliance.maneuvers.pedals_step import PedalsStep
 from appliance.maneuvers.pot_map_step import PotMapStep
 from appliance.maneuvers.steps import HandStep, PotCentreStep
 
@@ -12,4 +13,5 @@ STEP_CLASSES: dict[str, type[HandStep]] = {
     PotMapStep.name: PotMapStep,
     PalmTreeStep.name: PalmTreeStep,
     KRatioStep.name: KRatioStep,
+    PedalsStep.name: PedalsStep,
 }

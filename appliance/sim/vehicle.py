@@ -51,10 +51,16 @@ class VehicleParams:
     # relaxing with its own time constant once the turn ends.
     platform_yaw_gain: float = 0.0
     platform_time_constant_s: float = 2.0
+    # The pedals' shape (``pedal_fraction``): dead band (0..1 of travel) and exponent.
+    throttle_deadband: float = 0.0
+    throttle_exponent: float = 1.0
+    brake_deadband: float = 0.0
+    brake_exponent: float = 1.0
 
     @classmethod
     def from_config(cls, config: VehicleConfig) -> VehicleParams:
         flatbed = config.kind == "flatbed"
+        pedals = config.simulation.pedals
         return cls(
             wheelbase_m=config.geometry.wheelbase_m,
             track_width_m=config.geometry.track_width_m,
@@ -68,6 +74,10 @@ class VehicleParams:
             max_steer_rate_rad_per_s=math.radians(config.limits.max_steer_rate_deg_per_s),
             max_speed_mps=config.limits.max_speed_mps * 1.5,
             platform_yaw_gain=0.01 if flatbed else 0.0,
+            throttle_deadband=pedals.throttle_deadband_pct / 100.0,
+            throttle_exponent=pedals.throttle_exponent,
+            brake_deadband=pedals.brake_deadband_pct / 100.0,
+            brake_exponent=pedals.brake_exponent,
         )
 
 
@@ -123,6 +133,29 @@ def wheel_targets(command: VehicleCommand, params: VehicleParams) -> tuple[float
             return front, params.counter_steer_ratio_k * front
 
 
+def pedal_fraction(pedal: float, deadband: float, exponent: float) -> float:
+    """The fraction of full traction (or braking) a pedal at ``pedal`` (0..1) gives:
+    nothing in the dead band, then a power law to 1 at full travel."""
+    if pedal <= deadband:
+        return 0.0
+    return float(min(1.0, (pedal - deadband) / (1.0 - deadband)) ** exponent)
+
+
+def pedal_accel_mps2(
+    params: VehicleParams, throttle_pct: float, brake_pct: float, speed_mps: float
+) -> float:
+    """The steady acceleration (forward, on the flat) at held pedals and ``speed_mps``:
+    what a pedal map measures, the truth the pedal sweep's fit is compared with. The
+    brake only slows a moving vehicle; at standstill it holds."""
+    drive = params.max_accel_mps2 * pedal_fraction(
+        throttle_pct / 100.0, params.throttle_deadband, params.throttle_exponent
+    )
+    braking = params.max_decel_mps2 * pedal_fraction(
+        brake_pct / 100.0, params.brake_deadband, params.brake_exponent
+    )
+    return drive - params.drag_per_s * speed_mps - (braking if speed_mps > 0.0 else 0.0)
+
+
 def _approach(value: float, target: float, dt_s: float, tau_s: float, rate_limit: float) -> float:
     """First-order lag toward target, with a rate limit."""
     alpha = 1.0 - math.exp(-dt_s / tau_s) if tau_s > 0 else 1.0
@@ -157,12 +190,18 @@ def step(
     throttle = 0.0 if command.pattern is MotionPattern.STOP else command.throttle_pct / 100.0
     brake = 1.0 if command.pattern is MotionPattern.STOP else command.brake_pct / 100.0
     direction = -1.0 if command.reverse else 1.0
-    drive_mps2 = direction * max(0.0, min(1.0, throttle)) * params.max_accel_mps2
+    traction = pedal_fraction(
+        max(0.0, min(1.0, throttle)), params.throttle_deadband, params.throttle_exponent
+    )
+    drive_mps2 = direction * traction * params.max_accel_mps2
     drive_mps2 -= params.drag_per_s * state.speed_mps
     accel = _approach(state.accel_mps2, drive_mps2, dt_s, params.traction_time_constant_s, 1e9)
     speed = state.speed_mps + accel * dt_s
+    brake_target = pedal_fraction(
+        max(0.0, min(1.0, brake)), params.brake_deadband, params.brake_exponent
+    )
     brake_level = _approach(
-        state.brake_level, max(0.0, min(1.0, brake)), dt_s, params.brake_time_constant_s, 1e9
+        state.brake_level, brake_target, dt_s, params.brake_time_constant_s, 1e9
     )
     braking_mps = brake_level * params.max_decel_mps2 * dt_s
     speed = math.copysign(max(0.0, abs(speed) - braking_mps), speed)
