@@ -108,6 +108,9 @@ def peer_credentials(writer: asyncio.StreamWriter) -> PeerCredentials:
 class _Session:
     peer: PeerCredentials
     holding: bool = False
+    # This client armed the pedal sweep (`dbw calibrate pedals`): a sweep must not outlive
+    # the command that watches it, or the next engagement would run it again.
+    sweeping: bool = False
 
 
 class ControlServer:
@@ -312,6 +315,9 @@ class ControlServer:
             del self._clients[task]
             if session.holding:
                 self._command("release", session, cause="client disconnected while holding")
+            if session.sweeping:
+                log.warning("control_client_left_sweep_armed", **peer.as_log_fields())
+                self._maneuver(ManeuverRequest("stop", "pedals"), session)
             writer.close()
             log.debug("control_client_disconnected", **peer.as_log_fields())
 
@@ -387,7 +393,7 @@ class ControlServer:
         return self._command(request.name, session)
 
     def _maneuver(self, request: ManeuverRequest, session: _Session) -> dict[str, Any]:
-        return self._verdict(
+        reply = self._verdict(
             "maneuver",
             f"{request.action} {request.step!r}",
             lambda: self.api.maneuver(request.action, request.step),
@@ -395,6 +401,9 @@ class ControlServer:
             action=request.action,
             step=request.step,
         )
+        if request.step == "pedals" and reply.get("accepted"):
+            session.sweeping = request.action == "start"
+        return reply
 
     def _select_route(self, name: str, session: _Session) -> dict[str, Any]:
         return self._verdict(

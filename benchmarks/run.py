@@ -20,6 +20,7 @@ BENCHMARKS = [
     "benchmarks.bench_features",
     "benchmarks.bench_docking",
     "benchmarks.bench_tracking",
+    "benchmarks.bench_pedal_sweep",
 ]
 
 

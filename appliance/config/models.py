@@ -18,7 +18,7 @@ from typing import Annotated, Literal, Self
 
 from pydantic import AwareDatetime, BaseModel, ConfigDict, Field, field_validator, model_validator
 
-from appliance.config.pedal_models import PedalSweepSettings, SimPedals
+from appliance.config.pedal_models import PedalSweepSettings, SimPedals, sweep_limit_problems
 from drivers.actuators.steering_model import ServoParams
 from drivers.gnss.client import BAUDRATES_BPS as GNSS_BAUDRATES_BPS
 from drivers.pc104.endpoint import SLCAN_BITRATES_BPS, CanInterface
@@ -612,33 +612,6 @@ class VehicleConfig(_Model):
                 f"({self.limits.max_steer_angle_deg} deg): lower it"
             )
 
-    def _pedal_sweep_within_the_limits(self) -> None:
-        """The sweep asks for nothing the safety limiter would clamp: a clamped level is
-        not the level the fit files the samples under."""
-        sweep, limits = self.pedal_sweep, self.limits
-        if sweep.throttle_levels_pct[-1] > limits.throttle_max_pct:
-            raise ValueError(
-                f"pedal_sweep.throttle_levels_pct goes to {sweep.throttle_levels_pct[-1]}, "
-                f"past limits.throttle_max_pct ({limits.throttle_max_pct})"
-            )
-        if max(sweep.brake_levels_pct[-1], sweep.hold_brake_pct) > limits.brake_max_pct:
-            raise ValueError(
-                "pedal_sweep's brake levels (and hold_brake_pct) must not pass "
-                f"limits.brake_max_pct ({limits.brake_max_pct})"
-            )
-        if sweep.top_speed_mps > limits.max_speed_mps:
-            raise ValueError(
-                f"pedal_sweep.top_speed_mps ({sweep.top_speed_mps}) must not exceed "
-                f"limits.max_speed_mps ({limits.max_speed_mps})"
-            )
-        top_set = self.engagement.max_set_speed_mps
-        if self.engagement.hold_to_move and sweep.top_speed_mps > top_set:
-            # The released button's stop distance is worked out from the top set speed.
-            raise ValueError(
-                f"pedal_sweep.top_speed_mps ({sweep.top_speed_mps}) must not exceed "
-                f"engagement.max_set_speed_mps ({top_set}) under hold-to-move"
-            )
-
     @model_validator(mode="after")
     def _cross_checks(self) -> Self:
         if not self.simulation.enabled:
@@ -700,8 +673,13 @@ class VehicleConfig(_Model):
                 'speed_path = "pedals" drives the throttle and brake actuators and uses no '
                 "PC104: remove [devices.can] (a vehicle without a PC104 has no CAN link)"
             )
-        if self.speed_path == "pedals":  # the only path with pedals of ours to sweep
-            self._pedal_sweep_within_the_limits()
+        if self.speed_path == "pedals" and self.pedal_sweep != PedalSweepSettings():
+            # A sweep of the file's own is checked now; the defaults only when a sweep is
+            # armed (a vehicle that never sweeps must not fail to load over them, nor
+            # its copy written out for the simulator's process).
+            problems = sweep_limit_problems(self.pedal_sweep, self.limits, self.engagement)
+            if problems:
+                raise ValueError("; ".join(problems))
         control_period_s = 1.0 / self.rates.control_hz
         if self.supervision.control_heartbeat_deadline_s < 2 * control_period_s:
             raise ValueError(

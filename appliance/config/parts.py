@@ -17,6 +17,7 @@ from appliance.config.calibration import Calibration
 from appliance.config.models import Engagement, Limits, SafetyTimeouts, Staleness, VehicleConfig
 from appliance.guidance.dock_source import DockSourceParams, DockZone
 from appliance.guidance.docking import DockingParams
+from appliance.guidance.pedal_plant import LinearPlant, MapPlant, table_from_bands
 from appliance.guidance.pedal_speed import PedalSpeedParams
 from appliance.guidance.pedal_sweep import PedalSweepParams
 from appliance.localization.launcher_localizer import LocalizerParams, ScannerSetup
@@ -154,6 +155,29 @@ def pedal_speed_params(config: VehicleConfig) -> PedalSpeedParams:
     )
     stop_pct = min(needed_mps2 / params.decel_per_brake_pct_mps2, params.brake_max_pct)
     return replace(params, stop_brake_pct=max(params.stop_brake_pct, stop_pct))
+
+
+def pedal_plant(config: VehicleConfig, calibration: Calibration | None) -> MapPlant | None:
+    """The pedal sweep's maps for the speed controller (None: the calibration has none,
+    and the controller keeps its linear model, which also continues the maps beyond
+    what they measured)."""
+    if calibration is None or calibration.pedals is None:
+        return None
+    params = pedal_speed_params(config)
+    tables = []
+    for table in (calibration.pedals.throttle, calibration.pedals.brake):
+        tables.append(
+            table_from_bands(
+                table.pedal_pct,
+                table.speed_mps,
+                table.first_level_by_band,
+                table.accel_mps2_by_band,
+            )
+        )
+    linear = LinearPlant(
+        params.accel_per_throttle_pct_mps2, params.decel_per_brake_pct_mps2, params.drag_per_s
+    )
+    return MapPlant(tables[0], tables[1], linear)
 
 
 def pedal_sweep_params(config: VehicleConfig) -> PedalSweepParams:

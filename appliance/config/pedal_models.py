@@ -16,7 +16,7 @@ the speed controller's built-in gains assume).
 from __future__ import annotations
 
 import itertools
-from typing import Self
+from typing import Protocol, Self
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
@@ -56,6 +56,9 @@ class PedalSweepSettings(_Model):
     # Four lags of the traction and of the brake: a step's answer before it is a sample.
     traction_settle_s: float = Field(1.6, ge=0.0, le=10.0)
     brake_settle_s: float = Field(1.2, ge=0.0, le=10.0)
+    # The fit's verdict: each band needs this many measured levels in each map, fewer
+    # cannot show the map's shape (a short sweep on a test track may settle for 2).
+    min_levels_per_band: int = Field(3, ge=2, le=10)
 
     @model_validator(mode="after")
     def _grid(self) -> Self:
@@ -87,3 +90,50 @@ class SimPedals(_Model):
     throttle_exponent: float = Field(1.0, ge=0.5, le=2.0)
     brake_deadband_pct: float = Field(0.0, ge=0.0, le=30.0)
     brake_exponent: float = Field(1.0, ge=0.5, le=2.0)
+
+
+class _Limits(Protocol):
+    @property
+    def throttle_max_pct(self) -> float: ...
+    @property
+    def brake_max_pct(self) -> float: ...
+    @property
+    def max_speed_mps(self) -> float: ...
+
+
+class _Engagement(Protocol):
+    @property
+    def hold_to_move(self) -> bool: ...
+    @property
+    def max_set_speed_mps(self) -> float: ...
+
+
+def sweep_limit_problems(
+    sweep: PedalSweepSettings, limits: _Limits, engagement: _Engagement
+) -> list[str]:
+    """What in the sweep the vehicle's limits would refuse or clamp (empty: nothing). A
+    clamped level is not the level the fit files its samples under."""
+    problems = []
+    if sweep.throttle_levels_pct[-1] > limits.throttle_max_pct:
+        problems.append(
+            f"pedal_sweep.throttle_levels_pct goes to {sweep.throttle_levels_pct[-1]}, "
+            f"past limits.throttle_max_pct ({limits.throttle_max_pct})"
+        )
+    if max(sweep.brake_levels_pct[-1], sweep.hold_brake_pct) > limits.brake_max_pct:
+        problems.append(
+            "pedal_sweep's brake levels (and hold_brake_pct) must not pass "
+            f"limits.brake_max_pct ({limits.brake_max_pct})"
+        )
+    if sweep.top_speed_mps > limits.max_speed_mps:
+        problems.append(
+            f"pedal_sweep.top_speed_mps ({sweep.top_speed_mps}) must not exceed "
+            f"limits.max_speed_mps ({limits.max_speed_mps})"
+        )
+    if engagement.hold_to_move and sweep.top_speed_mps > engagement.max_set_speed_mps:
+        # The released button's stop distance is worked out from the top set speed.
+        problems.append(
+            f"pedal_sweep.top_speed_mps ({sweep.top_speed_mps}) must not exceed "
+            f"engagement.max_set_speed_mps ({engagement.max_set_speed_mps}) under "
+            "hold-to-move"
+        )
+    return problems

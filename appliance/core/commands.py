@@ -78,7 +78,9 @@ class CommandPaths:
         self.brake = SafeBrake(parts.safe_brake_params(config.safety, config.limits))
         self.speed = SpeedRamp(parts.speed_ramp_params(config.engagement, config.limits))
         self.pedals: PedalSpeedController | None = (
-            PedalSpeedController(parts.pedal_speed_params(config))
+            PedalSpeedController(
+                parts.pedal_speed_params(config), parts.pedal_plant(config, calibration)
+            )
             if config.speed_path == "pedals"
             else None
         )

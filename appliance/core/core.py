@@ -28,6 +28,7 @@ from typing import Any
 from appliance.config import parts
 from appliance.config.calibration import Calibration
 from appliance.config.models import VehicleConfig
+from appliance.config.pedal_models import sweep_limit_problems
 from appliance.core.autopilot import (
     AutopilotSource,
     AutopilotWish,
@@ -364,6 +365,13 @@ class ControlCore:
         if self.sweep is None:
             return (
                 'the pedal sweep needs speed_path = "pedals" (here the PC104 closes the speed loop)'
+            )
+        problems = sweep_limit_problems(
+            self.config.pedal_sweep, self.config.limits, self.config.engagement
+        )
+        if problems:
+            return "the vehicle file's [pedal_sweep] does not fit its limits: " + "; ".join(
+                problems
             )
         if self.state.mode is not Mode.READY:
             return f"the pedal sweep starts from READY, not {self.state.mode}"

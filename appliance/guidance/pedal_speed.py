@@ -38,8 +38,11 @@ pedal positions, and is built around what a nine-ton truck on cable-pulled pedal
 
 Default parameters are for the Husky (nine tons, up to 4.47 m/s = 10 mph) against the
 simulated plant (``appliance.sim.vehicle``: 1.0 m/s² at full throttle, 3.0 m/s² at full
-brake, drag 0.05 /s, 0.4 s traction lag); on the vehicle the three plant numbers are to be
-measured (a coast-down gives the drag, a few throttle and brake steps the gains).
+brake, drag 0.05 /s, 0.4 s traction lag). On the vehicle the plant is measured: `dbw
+calibrate pedals` sweeps the pedals into maps of acceleration per pedal and speed, and the
+controller then turns its effort into pedal positions through them
+(:class:`~appliance.guidance.pedal_plant.MapPlant`); the three linear numbers remain its
+model where the maps end, and its whole model without them.
 
 * Gains: with the 0.4 s traction lag, a P loop on speed has the characteristic equation
   ``0.4 s² + s + kp = 0``; kp = 0.5 /s gives damping ζ ≈ 1.1 (no ringing), ki = 0.05 /s²
@@ -64,6 +67,8 @@ import math
 from dataclasses import dataclass, fields, replace
 from enum import StrEnum
 from typing import Protocol
+
+from appliance.guidance.pedal_plant import LinearPlant, PedalPlant
 
 # A speed beyond this comes from a broken producer, not from a truck: treated as non-finite.
 _PLAUSIBLE_MPS = 100.0
@@ -185,8 +190,19 @@ def _toward(value: float, target: float, rise: float, fall: float, dt_s: float) 
 class PedalSpeedController:
     """Target speed in, throttle and brake out. Pure apart from its own state."""
 
-    def __init__(self, params: PedalSpeedParams | None = None) -> None:
+    def __init__(
+        self, params: PedalSpeedParams | None = None, plant: PedalPlant | None = None
+    ) -> None:
         self.params = params if params is not None else PedalSpeedParams()
+        p = self.params
+        # The pedal sweep's maps where the calibration has them, else the linear model.
+        self.plant: PedalPlant = (
+            plant
+            if plant is not None
+            else LinearPlant(
+                p.accel_per_throttle_pct_mps2, p.decel_per_brake_pct_mps2, p.drag_per_s
+            )
+        )
         self.reset()
 
     def reset(self, throttle_pct: float = 0.0, brake_pct: float = 0.0) -> None:
@@ -266,15 +282,17 @@ class PedalSpeedController:
         p = self.params
         reference, ref_accel = self._shape_reference(dt_s, target, speed, wants_stop)
         error = reference - speed
-        effort = ref_accel + p.drag_per_s * reference + p.kp_per_s * error + self._integral_mps2
+        plant = self.plant
+        coast = plant.coast_accel_mps2(reference)
+        effort = ref_accel - coast + p.kp_per_s * error + self._integral_mps2
         if accel_mps2 is not None:
             effort += p.accel_feedback_gain * (ref_accel - accel_mps2)
 
         if wants_stop:
             effort = min(effort, 0.0)  # a stop never opens the throttle
         state = self._split(effort)
-        throttle_wish = effort / p.accel_per_throttle_pct_mps2 if state is PedalState.DRIVE else 0.0
-        brake_wish = -effort / p.decel_per_brake_pct_mps2 if state is PedalState.BRAKE else 0.0
+        throttle_wish = plant.throttle_pct(effort, reference) if state is PedalState.DRIVE else 0.0
+        brake_wish = plant.brake_pct(effort, reference) if state is PedalState.BRAKE else 0.0
         throttle_wish = min(max(throttle_wish, 0.0), p.throttle_max_pct)
         brake_wish = min(max(brake_wish, 0.0), p.brake_max_pct)
         if self._throttle_pct > 0.0:
@@ -293,7 +311,7 @@ class PedalSpeedController:
         )
 
         # Anti-windup: integrate only while the throttle is in charge and can follow.
-        wanted_throttle = effort / p.accel_per_throttle_pct_mps2
+        wanted_throttle = plant.throttle_pct(effort, reference)
         held_back = error > 0.0 and throttle < wanted_throttle - 1e-6
         held_up = error < 0.0 and throttle > max(wanted_throttle, 0.0) + 1e-6
         closed = error < 0.0 and throttle <= 0.0
@@ -327,9 +345,7 @@ class PedalSpeedController:
             soft_mps2 = reference / p.stop_soft_time_s
             wish = -max(p.stop_final_decel_mps2, min(p.ref_decel_mps2, soft_mps2))
         else:
-            spare_mps2 = (
-                p.throttle_max_pct * p.accel_per_throttle_pct_mps2 - p.drag_per_s * reference
-            )
+            spare_mps2 = self.plant.accel_at_throttle_mps2(p.throttle_max_pct, reference)
             accel_cap = max(min(p.ref_accel_mps2, p.ref_accel_headroom * spare_mps2), 0.0)
             # Follow a moving target without lag (its rate), close the gap exponentially.
             last = self._last_target_mps

@@ -51,7 +51,8 @@ class PedalSweepParams:
     max_throttle_s: float = 30.0
     coast_down_end_mps: float = 0.5
     hold_brake_pct: float = 40.0
-    stopped_mps: float = 0.05
+    # Standing: a GNSS/INS speed reads a few cm/s on a vehicle held by its brake.
+    stopped_mps: float = 0.15
     stopped_s: float = 1.0  # standing this long before a run's throttle
     # The throttle phase ends when the speed gained less than this over plateau_s.
     plateau_gain_mps: float = 0.1

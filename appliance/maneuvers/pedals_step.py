@@ -40,6 +40,7 @@ def map_params(context_sweep: Any) -> PedalMapParams:
         speed_band_edges_mps=context_sweep.speed_band_edges_mps,
         traction_settle_s=context_sweep.traction_settle_s,
         brake_settle_s=context_sweep.brake_settle_s,
+        min_levels_per_band=context_sweep.min_levels_per_band,
     )
 
 

@@ -4,7 +4,10 @@ The daemon stays in charge of the vehicle the whole time: the runner only asks i
 its cycles (``appliance.core.maneuver_tap``) and reads the samples back, so nothing here
 can command an actuator, and whatever the runner does (or fails to do) the mode machine
 and the safety layer act as they always do. A maneuver the technician performs by hand
-(pot centre, pot map, a palm tree driven as in the paper) needs nothing more.
+(pot centre, pot map, a palm tree driven as in the paper) needs nothing more. The pedal
+sweep's start also arms the daemon's own sweep program (``appliance.guidance.
+pedal_sweep``), whose pedals the operator hands over by engaging and the mode machine
+takes back as from any source; its stop (whichever way the run ended) disarms it.
 
 The runner ends a run for exactly one reason, said in words: the step is complete, the
 technician pressed Ctrl-C, the time ran out, the daemon went away, or a sample showed

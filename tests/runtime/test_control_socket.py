@@ -495,6 +495,28 @@ async def test_a_hold_is_released_when_its_connection_drops(short_tmp: Path) -> 
         assert served.api.requests == ["hold", "release", "hold", "release"]
 
 
+async def test_a_pedal_sweep_is_disarmed_when_its_connection_drops(short_tmp: Path) -> None:
+    path = short_tmp / "control.sock"
+    start = {"op": "maneuver", "action": "start", "step": "pedals"}
+    async with serving(path) as served:
+        async with ControlClient(path) as client:
+            assert (await client.call(start))["accepted"] is True
+        await wait_until(
+            lambda: served.api.requests == ["maneuver:start:pedals", "maneuver:stop:pedals"]
+        )
+        served.api.requests.clear()
+        async with ControlClient(path) as client:  # stopped properly, or another step
+            await client.call(start)
+            await client.call({"op": "maneuver", "action": "stop", "step": "pedals"})
+            await client.call({"op": "maneuver", "action": "start", "step": "pot-map"})
+        await wait_until(lambda: served.server.client_count == 0)
+        assert served.api.requests == [
+            "maneuver:start:pedals",
+            "maneuver:stop:pedals",
+            "maneuver:start:pot-map",
+        ]
+
+
 async def test_a_failing_daemon_api_costs_one_reply_not_the_connection(short_tmp: Path) -> None:
     path = short_tmp / "control.sock"
     api = FakeApi()

@@ -17,10 +17,12 @@ import pytest
 from pydantic import ValidationError
 
 from appliance.config import load_config
+from appliance.config.calibration import Calibration
 from appliance.config.calibration_file import read_calibration_file, write_calibration
 from appliance.config.calibration_pedals import PedalMapTable, PedalsCalibration
 from appliance.config.models import VehicleConfig
 from appliance.config.simulated_calibration import simulated_calibration
+from appliance.core.core import ControlCore
 from appliance.maneuvers.merge import merge_result
 from appliance.maneuvers.pedals_step import PedalsStep, map_table
 from appliance.maneuvers.steps import StepContext
@@ -28,6 +30,10 @@ from appliance.sim.sweep_run import SweepRun, run_sweep
 
 CONFIG = load_config("husky-sim")
 WHEN = datetime(2026, 12, 1, 8, 0, tzinfo=UTC)
+
+
+def simulated_calibration_for(config: VehicleConfig) -> Calibration:
+    return Calibration.from_file(simulated_calibration(config.name))
 
 
 @cache
@@ -113,32 +119,42 @@ def test_an_unmeasured_band_is_an_empty_row() -> None:
     assert empty.cell(0, 1) is None and empty.cell(0, 0) == 0.1
 
 
-def husky_with(section: str, **values: Any) -> VehicleConfig:
+def husky_with(**sections: dict[str, Any]) -> VehicleConfig:
     data = CONFIG.model_dump()
-    data[section] = data[section] | values
+    for section, values in sections.items():
+        data[section] = data[section] | values
     return VehicleConfig.model_validate(data)
 
 
 @pytest.mark.parametrize(
-    ("section", "values", "message"),
+    ("sections", "message"),
     [
-        ("pedal_sweep", {"throttle_levels_pct": (20.0, 50.0)}, "past limits.throttle_max_pct"),
-        ("pedal_sweep", {"speed_band_edges_mps": (0.5, 4.5)}, "must end below top_speed_mps"),
-        ("pedal_sweep", {"brake_levels_pct": (10.0, 5.0)}, "must be increasing"),
-        ("pedal_sweep", {"top_speed_mps": 5.0}, "must not exceed limits.max_speed_mps"),
-        ("pedal_sweep", {"throttle_levels_pct": (0.0, 20.0)}, "must lie in (0, 100]"),
+        ({"pedal_sweep": {"throttle_levels_pct": (20.0, 50.0)}}, "past limits.throttle_max_pct"),
+        ({"pedal_sweep": {"speed_band_edges_mps": (0.5, 4.5)}}, "must end below top_speed"),
+        ({"pedal_sweep": {"brake_levels_pct": (10.0, 5.0)}}, "must be increasing"),
+        ({"pedal_sweep": {"top_speed_mps": 5.0}}, "must not exceed limits.max_speed_mps"),
+        ({"pedal_sweep": {"throttle_levels_pct": (0.0, 20.0)}}, r"must lie in \(0, 100\]"),
         (
-            "engagement",
-            {"hold_to_move": True, "hold_to_move_stop_distance_m": 5.0},
+            {
+                "engagement": {"hold_to_move": True, "hold_to_move_stop_distance_m": 5.0},
+                "pedal_sweep": {"top_speed_mps": 4.0},
+            },
             "under hold-to-move",
         ),
     ],
 )
 def test_the_vehicle_file_refuses_a_sweep_the_limits_would_clamp(
-    section: str, values: dict[str, Any], message: str
+    sections: dict[str, dict[str, Any]], message: str
 ) -> None:
-    with pytest.raises(ValidationError, match=message.replace("(", r"\(").replace("]", r"\]")):
-        husky_with(section, **values)
+    with pytest.raises(ValidationError, match=message):
+        husky_with(**sections)
+
+
+def test_the_default_sweep_past_a_vehicles_limits_loads_but_is_not_armed() -> None:
+    config = husky_with(limits={"throttle_max_pct": 30.0})
+    core = ControlCore(config, simulated_calibration_for(config))
+    accepted, message = core.maneuver_request("start", "pedals", 0.0)
+    assert not accepted and "past limits.throttle_max_pct (30.0)" in message
 
 
 def test_a_vehicle_whose_pc104_closes_the_speed_loop_is_not_held_to_the_sweep() -> None:
