@@ -34,6 +34,17 @@ def render_status(doc: dict[str, Any]) -> str:
         if isinstance(reason, str) and reason:
             line += f" ({clean_text(reason)})"
         lines.append(line)
+    sweep = as_dict(doc.get("pedal_sweep"))
+    if sweep:  # `dbw calibrate pedals` has armed the daemon's sweep
+        phase = sweep.get("phase")
+        run, runs = sweep.get("run"), sweep.get("runs")
+        line = f"pedal sweep: {clean_text(phase) if isinstance(phase, str) else '?'}"
+        if isinstance(run, int) and isinstance(runs, int):
+            line += f", run {run}/{runs}"
+        throttle, brake = _finite(sweep.get("throttle_pct")), _finite(sweep.get("brake_pct"))
+        if throttle is not None and brake is not None:
+            line += f", throttle {throttle:.0f} %, brake {brake:.0f} %"
+        lines.append(line)
     hold = as_dict(doc.get("hold_to_move"))
     if hold.get("required") is True:
         held = "held" if hold.get("held") is True else "not held"

@@ -329,10 +329,12 @@ class ControlCore:
 
     def maneuver_request(self, action: str, step: str, now_s: float) -> tuple[bool, str]:
         """`dbw calibrate STEP` starts (``start``) or ends (``stop``) the tap on the cycles.
-        Only reads: the mode machine and the safety layer stay as they are. Told to the
-        request listeners, so replay taps the same cycles."""
+        The tap only reads: the mode machine and the safety layer stay as they are. The
+        pedals step also arms (and its stop disarms) the pedal sweep, a source whose
+        wishes they judge like any other's. Told to the request listeners, so replay taps
+        the same cycles and runs the same sweep."""
         if action == "start":
-            refusal = self._sweep_refusal(now_s) if step == "pedals" else None
+            refusal = self._sweep_refusal() if step == "pedals" else None
             if refusal is not None:
                 accepted, message = False, refusal
             else:
@@ -359,7 +361,7 @@ class ControlCore:
             listener("maneuver", f"{action}:{step}", now_s, accepted, message)
         return accepted, message
 
-    def _sweep_refusal(self, now_s: float) -> str | None:
+    def _sweep_refusal(self) -> str | None:
         """Why the pedal sweep may not be armed now (None: it may): only on the pedals
         path, from READY (not engaged: the operator engages knowingly, after), standing."""
         if self.sweep is None:
@@ -494,7 +496,11 @@ class ControlCore:
         away before any command goes out."""
         held = self._held or not self.config.engagement.hold_to_move
         in_control = self.state.mode is Mode.SPEED_HOLD and held
-        command = sweep.update(m.speed_mps, now_s, in_control)
+        try:
+            command = sweep.update(m.speed_mps, now_s, in_control)
+        except Exception as exc:  # as for any source: a broken one is not ready, no more
+            self.last_sweep = None
+            return AutopilotWish(ready=False, reason=f"pedal sweep: {type(exc).__name__}: {exc}")
         self.last_sweep = command
         return AutopilotWish(
             ready=True,

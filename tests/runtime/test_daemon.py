@@ -20,6 +20,7 @@ from appliance.daemon import Daemon, safe_command
 from appliance.supervisor import ServiceContext, ServiceSpec
 from safety.safe_stop import SafeCommand, SafeStop
 from safety.watchdog import RestartPolicy
+from tests.runtime.inline import isolated
 from tools.fake_notify import FakeNotifySocket
 
 WATCHDOG_S = 0.4  # pings every 0.2 s
@@ -46,7 +47,7 @@ def make_daemon(
     for key, value in notify.environment(WATCHDOG_S).items():
         monkeypatch.setenv(key, value)
     monkeypatch.delenv("WATCHDOG_PID", raising=False)
-    config = config or load_config("sim")
+    config = config or isolated(load_config("sim"))
     target = RecordingTarget()
     daemon = Daemon(
         config,

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import asyncio
 import math
+import time
 from pathlib import Path
 
 import numpy as np
@@ -114,7 +115,13 @@ async def test_the_daemon_follows_the_route_and_a_lost_fix_hands_steering_back()
         assert "fix lost" in said, said
         # Epochs come every 0.1 s and the limit is max_fix_age_s: well within a second.
         assert took_s < config.positioning.max_fix_age_s + 0.5
+        # The core's release goes out with the cycle that changed the mode and reaches the
+        # twin over its serial link a cycle or two later: read the twin until it has.
         state = await twins.refresh()
+        deadline_s = time.monotonic() + 1.0
+        while state["steering"]["command"]["mode"] != "release" and time.monotonic() < deadline_s:
+            await asyncio.sleep(0.02)
+            state = await twins.refresh()
         assert state["gnss"]["shadowed"] and state["gnss"]["dropped_epochs"] > 0
         assert state["throttle"]["actuator_position_pct"] < 1.0 or (
             state["brake"]["actuator_position_pct"] > 0.0

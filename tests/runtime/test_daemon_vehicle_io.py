@@ -15,7 +15,7 @@ from drivers.actuators.messages import (
     SteeringMode,
     ThrottleCommand,
 )
-from tests.runtime.inline import inline_sim
+from tests.runtime.inline import inline_sim, isolated
 
 
 async def wait_until(predicate: object, timeout_s: float = 5.0) -> None:
@@ -29,7 +29,7 @@ async def wait_until(predicate: object, timeout_s: float = 5.0) -> None:
 
 
 async def test_board_inputs_stay_fresh_and_a_replugged_board_recovers() -> None:
-    daemon = Daemon(inline_sim(load_config("sim")))
+    daemon = Daemon(inline_sim(isolated(load_config("sim"))))
     io = daemon.io
     assert io.boards is not None
     assert io.simulator is not None
@@ -60,7 +60,7 @@ async def test_board_inputs_stay_fresh_and_a_replugged_board_recovers() -> None:
 
 
 async def test_shutdown_commands_the_boards_safe() -> None:
-    daemon = Daemon(inline_sim(load_config("sim")))
+    daemon = Daemon(inline_sim(isolated(load_config("sim"))))
     boards = daemon.io.boards
     assert boards is not None
     result = await daemon.run(duration_s=1.0, handle_signals=False)
@@ -75,7 +75,7 @@ async def test_shutdown_commands_the_boards_safe() -> None:
 
 
 async def test_simulated_scanners_see_the_launcher_ahead() -> None:
-    daemon = Daemon(load_config("sim"))  # the simulated vehicle in its own process
+    daemon = Daemon(isolated(load_config("sim")))  # the simulated vehicle in its own process
     io = daemon.io
     run = asyncio.ensure_future(daemon.run(handle_signals=False))
     try:
@@ -95,7 +95,7 @@ async def test_simulated_scanners_see_the_launcher_ahead() -> None:
 
 
 async def test_scanner_refusing_its_configuration_is_given_up_without_a_loop() -> None:
-    daemon = Daemon(inline_sim(load_config("sim")))
+    daemon = Daemon(inline_sim(isolated(load_config("sim"))))
     assert daemon.io.simulator is not None
     twin = daemon.io.simulator.scanner_twins["right"]
     twin.faults.fail_commands = {"mLMPsetscancfg": 0x5}  # invalid data
@@ -113,7 +113,7 @@ async def test_scanner_refusing_its_configuration_is_given_up_without_a_loop() -
 
 
 async def test_pc104_faults_are_reported_and_survived_by_the_daemon() -> None:
-    daemon = Daemon(inline_sim(load_config("sim")))
+    daemon = Daemon(inline_sim(isolated(load_config("sim"))))
     io = daemon.io
     assert io.simulator is not None
     assert io.pc104 is not None
@@ -153,7 +153,7 @@ async def test_pc104_faults_are_reported_and_survived_by_the_daemon() -> None:
 
 
 async def test_scanners_set_to_cola_b_stream_too() -> None:
-    config = load_config("sim")  # the child process's twins speak CoLa-B too
+    config = isolated(load_config("sim"))  # the child process's twins speak CoLa-B too
     devices = config.devices.model_copy(
         update={
             side: getattr(config.devices, side).model_copy(

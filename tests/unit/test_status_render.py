@@ -284,3 +284,23 @@ def test_a_pedals_vehicle_shows_its_speed_controller_and_its_links() -> None:
     assert line_with(text, "gnss").split(maxsplit=1) == ["gnss", "up 10.0 epochs/s, bad lines 2"]
     braking = dict(doc, pedal_speed={"state": "stop", "reason": "stop requested"})
     assert "pedals: stop (stop requested)" in render_status(braking).splitlines()
+
+
+def test_an_armed_pedal_sweep_shows_its_phase_run_and_pedals() -> None:
+    doc = {
+        "mode": "speed_hold",
+        "pedal_sweep": {
+            "phase": "throttle",
+            "run": 2,
+            "runs": 6,
+            "throttle_pct": 30.0,
+            "brake_pct": 0.0,
+        },
+    }
+    assert (
+        "pedal sweep: throttle, run 2/6, throttle 30 %, brake 0 %"
+        in render_status(doc).splitlines()
+    )
+    odd = {"mode": "ready", "pedal_sweep": {"phase": "x\x1b[2J", "run": "2", "brake_pct": None}}
+    line = line_with(render_status(odd), "pedal sweep")
+    assert "\x1b" not in line and "run" not in line
