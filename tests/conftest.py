@@ -5,8 +5,9 @@ Why the marker: ``make unit`` runs the CPU-bound tests on every core (pytest-xdi
 then the ``realtime`` ones, which run the daemon and its twins on the wall clock, where a
 test starved of CPU by its neighbour would see stale inputs that are not there: one at a
 time, except the calibration maneuvers' long runs, which take minutes of wall clock at
-about 0.4 of a core and run beside the rest (two groups, two workers). A runtime module that only runs commands on files or faster-than-real-
-time simulations says so with ``pytestmark = pytest.mark.cpu_bound``.
+about 0.4 of a core and run beside the rest (two groups, two workers). A runtime module
+that only runs commands on files or faster-than-real-time simulations says so with
+``pytestmark = pytest.mark.cpu_bound``.
 
 Why no deadline: hypothesis fails an example that takes longer than 200 ms, and on the
 shared 2-core machines CI runs on the hypervisor takes up to 800 ms of CPU in one second.

@@ -39,9 +39,9 @@ class PedalSweepSettings(_Model):
 
     The defaults are for the Husky (4.47 m/s limit, 45 % throttle limit): every brake
     starts from the top speed, and only the light ones fill the top band (a hard brake
-    crosses it before its lag has settled). About 800 m of straight level road in all,
-    150 m or less per run: the operator can stop anywhere, turn round, and resume (the
-    interrupted run starts over)."""
+    crosses it before its lag has settled). Up to about 800 m of straight level road in
+    all, each run from a standstill: the operator can stop anywhere, turn round, and
+    resume (the interrupted run starts over)."""
 
     top_speed_mps: float = Field(4.2, gt=0.5, le=20.0)
     throttle_levels_pct: tuple[float, ...] = Field((20.0, 30.0, 40.0), min_length=1)
