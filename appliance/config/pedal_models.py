@@ -39,7 +39,7 @@ class PedalSweepSettings(_Model):
 
     The defaults are for the Husky (4.47 m/s limit, 45 % throttle limit): every brake
     starts from the top speed, and only the light ones fill the top band (a hard brake
-    crosses it before its lag has settled). Up to about 800 m of straight level road in
+    crosses it before its lag has settled). Up to about 1.2 km of straight level road in
     all, each run from a standstill: the operator can stop anywhere, turn round, and
     resume (the interrupted run starts over)."""
 

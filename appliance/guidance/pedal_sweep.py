@@ -15,9 +15,12 @@ when the operator hands the pedals back the interrupted run starts over from sta
 A run: brake to a standstill and wait (``STOPPING``); hold the run's throttle level until
 the top speed, or until the speed stops rising, or a time limit (``THROTTLE``); a level too
 low to get there is followed by the sweep's highest level up to the top speed (``BOOST``),
-so every brake starts from the top: a brake step fills its cells only once its lag has
-settled, and a light brake's cells at high speed are the ones the speed controller uses
-most. Then both pedals released (``COAST``, the 0 % column of both maps), and the run's
+then held again while the vehicle slows from the top to where it had stopped gaining
+(``DESCEND``: a low throttle at high speed is what a speed hold at the top sits on, and
+no acceleration from standstill gets there), then boosted to the top once more, so every
+brake starts from the top: a brake step fills its cells only once its lag has settled,
+and a light brake's cells at high speed are the ones the speed controller uses most.
+Then both pedals released (``COAST``, the 0 % column of both maps), and the run's
 brake level to a stop (``BRAKE``). A brake level of 0 is a coast-down: released until
 ``coast_down_end_mps``, then the hold brake. Runs pair the throttle and brake levels in
 order, the shorter list repeating. Deny by default: an unknown speed, or a speed past the
@@ -35,6 +38,7 @@ class SweepPhase(StrEnum):
     STOPPING = "stopping"
     THROTTLE = "throttle"
     BOOST = "boost"
+    DESCEND = "descend"
     COAST = "coast"
     BRAKE = "brake"
     DONE = "done"
@@ -118,6 +122,8 @@ class PedalSweep:
         self._since_s: float | None = None  # when the current phase began
         self._still_since_s: float | None = None
         self._plateau_from: tuple[float, float] | None = None  # (t, speed) of the window
+        self._low_from_mps: float | None = None  # where the run's level stopped gaining
+        self._descended = False
 
     @property
     def done(self) -> bool:
@@ -154,10 +160,19 @@ class PedalSweep:
             if speed >= p.top_speed_mps:
                 self._enter(SweepPhase.COAST, now_s)
             elif self._plateaued(speed, now_s) or timed_out:
+                self._low_from_mps = speed
                 self._enter(SweepPhase.BOOST, now_s)
         elif self.phase is SweepPhase.BOOST:
             if speed >= p.top_speed_mps or now_s - self._since_s >= p.max_throttle_s:
-                self._enter(SweepPhase.COAST, now_s)
+                descend = self._low_from_mps is not None and not self._descended
+                self._enter(SweepPhase.DESCEND if descend else SweepPhase.COAST, now_s)
+                self._plateau_from = (now_s, speed)
+        elif self.phase is SweepPhase.DESCEND:
+            low = self._low_from_mps if self._low_from_mps is not None else 0.0
+            timed_out = now_s - self._since_s >= p.max_throttle_s
+            if speed <= low or self._stopped_falling(speed, now_s) or timed_out:
+                self._descended = True
+                self._enter(SweepPhase.BOOST, now_s)
         elif self.phase is SweepPhase.COAST:
             if now_s - self._since_s >= p.coast_s:
                 self._enter(SweepPhase.BRAKE, now_s)
@@ -167,11 +182,12 @@ class PedalSweep:
         if speed > p.top_speed_mps + p.overspeed_margin_mps and self.phase in (
             SweepPhase.THROTTLE,
             SweepPhase.BOOST,
+            SweepPhase.DESCEND,
             SweepPhase.COAST,
         ):
             self._enter(SweepPhase.BRAKE, now_s)  # deny by default: never faster than planned
         match self.phase:
-            case SweepPhase.THROTTLE:
+            case SweepPhase.THROTTLE | SweepPhase.DESCEND:
                 return self._command(self.phase, throttle_pct, 0.0)
             case SweepPhase.BOOST:
                 return self._command(self.phase, max(p.throttle_levels_pct), 0.0)
@@ -192,10 +208,20 @@ class PedalSweep:
         self._plateau_from = (now_s, speed)
         return speed - start[1] < self.params.plateau_gain_mps
 
+    def _stopped_falling(self, speed: float, now_s: float) -> bool:
+        start = self._plateau_from
+        if start is None or now_s - start[0] < self.params.plateau_s:
+            return False
+        self._plateau_from = (now_s, speed)
+        return start[1] - speed < self.params.plateau_gain_mps
+
     def _enter(self, phase: SweepPhase, now_s: float | None) -> None:
         self.phase = phase
         self._since_s = now_s
         self._still_since_s = None
+        if phase is SweepPhase.STOPPING:  # a run (again) from the start
+            self._low_from_mps = None
+            self._descended = False
 
     def _command(self, phase: SweepPhase, throttle_pct: float, brake_pct: float) -> SweepCommand:
         return SweepCommand(phase, self.run, self.params.runs, throttle_pct, brake_pct)

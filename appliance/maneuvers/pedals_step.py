@@ -27,7 +27,7 @@ from appliance.maneuvers.steps import HandStep, bar, sample_number, sample_speed
 from calibration.pedal_map import PedalMapAccumulator, PedalMapParams, PedalMapResult
 from calibration.pedal_map_cells import PedalMap
 
-SWEEP_PHASES = frozenset({"throttle", "boost", "coast", "brake"})
+SWEEP_PHASES = frozenset({"throttle", "boost", "descend", "coast", "brake"})
 STANDING_MPS = 0.1
 
 

@@ -74,7 +74,7 @@ def test_the_rules_hold_for_any_speed_sequence(
             assert command.throttle_pct == 0.0
             assert command.brake_pct >= PARAMS.hold_brake_pct
         if command.throttle_pct > 0.0:
-            assert command.phase in (SweepPhase.THROTTLE, SweepPhase.BOOST)
+            assert command.phase in (SweepPhase.THROTTLE, SweepPhase.BOOST, SweepPhase.DESCEND)
         assert 0 <= command.run <= PARAMS.runs
 
 
@@ -114,7 +114,13 @@ def test_a_level_that_cannot_reach_the_top_is_boosted_by_the_highest() -> None:
         command = sweep.update(2.0, now_s, True)
         assert now_s < 1.0 + 2 * PARAMS.plateau_s + 0.2
     assert (command.phase, command.throttle_pct) == (SweepPhase.BOOST, 40.0)
-    assert sweep.update(3.0, now_s + 0.1, True).phase is SweepPhase.COAST
+    # At the top, the run's own level again while the vehicle slows to where it stopped
+    # gaining; then the top once more, and the coast and brake from there.
+    command = sweep.update(3.0, now_s + 0.1, True)
+    assert (command.phase, command.throttle_pct) == (SweepPhase.DESCEND, 20.0)
+    assert sweep.update(2.5, now_s + 1.0, True).phase is SweepPhase.DESCEND
+    assert sweep.update(2.0, now_s + 2.0, True).phase is SweepPhase.BOOST
+    assert sweep.update(3.0, now_s + 3.0, True).phase is SweepPhase.COAST
 
 
 def test_taking_the_pedals_away_restarts_the_run_from_standstill() -> None:
@@ -166,6 +172,7 @@ def test_the_sweep_recovers_the_simulated_pedals_within_five_percent() -> None:
     assert run.done
     phases = [s["sweep_phase"] for s in run.samples]
     assert phases.count("boost") > 0  # the 20 % level cannot reach 4.2 m/s
+    assert phases.count("descend") > 0  # and is held again from the top
     # Every brake starts from the top speed, less the coast's 4 s at 0.2 m/s².
     starts = [
         run.samples[i]["speed_mps"]
