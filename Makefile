@@ -53,12 +53,11 @@ typecheck: venv
 	$(BIN)/mypy
 
 # The CPU-bound tests run on every core; the `realtime` ones (the daemon and its twins on
-# the wall clock: tests/conftest.py marks them) in two groups side by side, each one test
-# at a time: the calibration maneuvers' long, light runs beside all the others.
+# the wall clock: tests/conftest.py marks them) one at a time, so none is starved by another.
 UNIT_WORKERS ?= 2
 unit: venv
 	$(BIN)/pytest -n $(UNIT_WORKERS) -m "not vcan and not realtime"
-	$(BIN)/pytest -m realtime -n 2 --dist loadgroup
+	$(BIN)/pytest -m realtime
 
 # Hardware-in-the-loop tests over real SocketCAN vcan: the host's, else user-mode Linux
 # (Debian testing's, fetched, or the system's where that fails), else QEMU; chosen by probe.

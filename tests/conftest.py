@@ -2,12 +2,13 @@
 per-example deadline; the runtime and browser tests marked ``realtime``.
 
 Why the marker: ``make unit`` runs the CPU-bound tests on every core (pytest-xdist) and
-then the ``realtime`` ones, which run the daemon and its twins on the wall clock, where a
-test starved of CPU by its neighbour would see stale inputs that are not there: one at a
-time, except the calibration maneuvers' long runs, which take minutes of wall clock at
-about 0.4 of a core and run beside the rest (two groups, two workers). A runtime module
-that only runs commands on files or faster-than-real-time simulations says so with
-``pytestmark = pytest.mark.cpu_bound``.
+then the ``realtime`` ones one at a time, because those run the daemon and its twins on
+the wall clock, where a test starved of CPU by its neighbour would see stale inputs that
+are not there. (Tried: the calibration maneuvers' long runs beside the others, two
+groups on two workers, 495 s -> 306 s; one run in three failed, a simulated pot's frames
+more than 150 ms apart: the twins are niced, and a neighbour daemon is not.) A runtime
+module that only runs commands on files or faster-than-real-time simulations says so
+with ``pytestmark = pytest.mark.cpu_bound``.
 
 Why no deadline: hypothesis fails an example that takes longer than 200 ms, and on the
 shared 2-core machines CI runs on the hypervisor takes up to 800 ms of CPU in one second.
@@ -36,17 +37,9 @@ def _json_logs() -> None:
 REALTIME_DIRS = ("tests/runtime/", "tests/browser/")
 
 
-# The calibration maneuvers' long runs (a daemon and its simulated vehicle for minutes,
-# about 0.4 of a core) run beside the other realtime tests, not after them: two groups for
-# two pytest-xdist workers (``--dist loadgroup``), each group one test at a time.
-BESIDE = ("tests/runtime/test_calibrate_steering.py", "tests/runtime/test_calibrate_pedals.py")
-
-
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
     for item in items:
         path = item.path.as_posix()
         in_realtime_dir = any(f"/{d}" in path for d in REALTIME_DIRS)
         if in_realtime_dir and item.get_closest_marker("cpu_bound") is None:
             item.add_marker(pytest.mark.realtime)
-            beside = any(path.endswith(name) for name in BESIDE)
-            item.add_marker(pytest.mark.xdist_group("beside" if beside else "realtime"))
