@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from dataclasses import replace
 from typing import Any
 
 from appliance.config import parts
@@ -187,6 +188,10 @@ class ControlCore:
         # A restart disarms the sweep: the client sees it and ends the run.
         self.sweeping = False
         self.last_sweep: SweepCommand | None = None
+        # The sweep ended under automatic control: straight ahead, the controller stopping
+        # and holding, until the operator takes over (not the configured source, which
+        # may refuse where the sweep left the vehicle and fault a vehicle at rest).
+        self.sweep_ended_engaged = False
 
     # ---- the cycle --------------------------------------------------------------------
     def step(self, inputs: ControlInputs, now_s: float) -> CoreOutput:
@@ -347,12 +352,16 @@ class ControlCore:
             accepted, message = self.maneuver.stop(now_s)
             if accepted and self.sweeping:
                 self.sweeping = False
-                if self.state.mode in AUTOMATIC_MODES:
-                    # Not left to the speed controller at whatever set speed: the sweep
-                    # ends standing, and the vehicle goes back to the operator.
-                    self._note("operator_override", what="pedal sweep ended")
-                    self._apply(ManualOverridePressed(), now_s)
                 message += "; the pedal sweep is disarmed"
+                self.sweep_ended_engaged = self.state.mode in AUTOMATIC_MODES
+                if self.state.mode is Mode.SPEED_HOLD:
+                    # However the command ended (done, Ctrl-C, gone), never left to the
+                    # speed controller at whatever set speed the operator's + press
+                    # locked, nor coasting: a stop on the controller, held at standstill
+                    # until the operator takes over (OVERRIDE, a brake tap).
+                    self.state = replace(self.state, set_speed_mps=0.0)
+                    self._note("pedal_sweep_ended", then="stop and hold in speed hold")
+                    message += ": stopping and holding; OVERRIDE or a brake tap to take over"
         else:
             accepted, message = False, f"unknown maneuver action {action!r}: start or stop"
         if accepted:
@@ -475,6 +484,11 @@ class ControlCore:
         if self.sweeping and self.sweep is not None:
             return self._sweep_wish(m, now_s, self.sweep)
         engaged = self.state.mode in AUTOMATIC_MODES
+        self.sweep_ended_engaged = self.sweep_ended_engaged and engaged
+        if self.sweep_ended_engaged:
+            return AutopilotWish(
+                ready=True, steer_tyre_rad=0.0, status={"pedal_sweep": {"phase": "ended"}}
+            )
         observation = Observation(
             now_s,
             m.speed_mps,

@@ -50,12 +50,14 @@ class PedalsStep(HandStep):
     moves_vehicle = True
     needed_inputs: tuple[str, ...] = ("board.throttle", "board.brake")
     instructions: tuple[str, ...] = (
-        "pedals: on a long straight level road (about 300 m with the Husky's sweep), the",
+        "pedals: on a long straight level road (up to about 1.2 km for the Husky's sweep,",
+        "  in as many stretches as you like: each run starts standing), the",
         "  vehicle standing in READY. After the countdown the sweep is armed: press ENGAGE,",
         "  then SPEED + (hold ENGAGE throughout where the vehicle uses hold-to-move). The",
         "  daemon then drives: each run throttle up to the top speed, a coast, a brake to a",
         "  stop. A brake tap, the wheel or OVERRIDE stop it at once; engage and SPEED + again",
-        "  to resume (the run starts over). At the end the vehicle is handed back: brake.",
+        "  to resume (the run starts over). At the end the daemon stops and holds the",
+        "  vehicle in speed hold at 0 m/s: OVERRIDE (or a brake tap) takes it back.",
     )
 
     def reset(self) -> None:

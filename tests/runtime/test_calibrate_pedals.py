@@ -118,9 +118,13 @@ async def test_the_daemon_sweeps_the_pedals_and_the_fit_finds_the_hidden_ones(
         result = await asyncio.wait_for(command, 150.0)
         assert result.exit_code == 0, result.output
         assert "pedals merged" in result.output
-        # The sweep ended standing and handed the vehicle back.
-        await until(lambda: daemon.core.state.mode is Mode.READY, 2.0, daemon, "handed back")
+        # The sweep ended standing, held on the speed controller at 0 m/s, until the
+        # operator takes over.
         assert not daemon.core.sweeping
+        assert daemon.core.state.mode is Mode.SPEED_HOLD
+        assert daemon.core.state.set_speed_mps == 0.0
+        await twins.act("press", button="manual_override")
+        await until(lambda: daemon.core.state.mode is Mode.READY, 2.0, daemon, "handed back")
 
     lines = [json.loads(line) for line in samples.read_text().splitlines()]
     phases = [(s.get("sweep_phase"), s.get("sweep_run")) for s in lines if "sweep_phase" in s]

@@ -100,16 +100,25 @@ def test_a_brake_tap_takes_the_pedals_within_the_cycle_and_the_run_starts_over()
     assert throttle_pct(out) == 0.0 and brake_pct(out) > 0.0
 
 
-def test_stopping_the_maneuver_hands_the_vehicle_back_and_a_restart_disarms() -> None:
+def test_stopping_the_maneuver_mid_run_stops_and_holds_and_a_restart_disarms() -> None:
     core, vehicle = bench()
     armed(core, vehicle)
     into_speed_hold(core, vehicle)
-    vehicle.run(core, 2.0)
+    vehicle.run(core, 4.0)
+    assert vehicle.speed_mps > 0.3  # under way on the first level
     accepted, message = core.maneuver_request("stop", "pedals", vehicle.now_s)
-    assert accepted and "disarmed" in message
-    assert core.state.mode is Mode.READY
-    out = vehicle.step(core)
-    assert not out.throttle.enable and not out.brake.enable
+    assert accepted and "disarmed" in message and "stopping and holding" in message
+    # Not the set speed the + press locked, nor a coast: a stop on the controller, held.
+    assert core.state.mode is Mode.SPEED_HOLD and core.state.set_speed_mps == 0.0
+    outs = vehicle.run(core, 10.0)
+    assert all(throttle_pct(out) == 0.0 for out in outs)
+    assert vehicle.speed_mps == 0.0 and brake_pct(outs[-1]) > 0.0
+    assert all(out.mode is Mode.SPEED_HOLD and out.steer_tyre_rad == 0.0 for out in outs)
+    assert core.last_wish is not None and core.last_wish.ready  # straight, whatever source
+    vehicle.press(Buttons.MANUAL_OVERRIDE)
+    vehicle.step(core)
+    vehicle.step(core)
+    assert core.state.mode is Mode.READY and not core.sweep_ended_engaged
     core, vehicle = bench()
     armed(core, vehicle)
     core.reset()  # the supervisor restarted the control service
