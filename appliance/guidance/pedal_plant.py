@@ -20,6 +20,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from functools import cached_property
 from typing import Protocol
 
 import numpy as np
@@ -76,11 +77,19 @@ class PedalTable:
     speed_mps: tuple[float, ...]
     accel_mps2: tuple[tuple[float, ...], ...]  # per level, per band
 
+    @cached_property
+    def _arrays(self) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """The tables as arrays, made once: ``curve`` runs a few times per control cycle."""
+        return (
+            np.asarray(self.pedal_pct, dtype=np.float64),
+            np.asarray(self.speed_mps, dtype=np.float64),
+            np.asarray(self.accel_mps2, dtype=np.float64),
+        )
+
     def curve(self, speed_mps: float) -> tuple[FloatArray, FloatArray]:
         """(levels, accelerations) at ``speed_mps``: the levels measured in both bands
         around it (or in the nearest band outside them)."""
-        speeds = np.asarray(self.speed_mps)
-        values = np.asarray(self.accel_mps2, dtype=np.float64)
+        levels, speeds, values = self._arrays
         if speeds.size == 1 or speed_mps <= speeds[0]:
             column = values[:, 0]
         elif speed_mps >= speeds[-1]:
@@ -90,7 +99,7 @@ class PedalTable:
             weight = (speed_mps - speeds[high - 1]) / (speeds[high] - speeds[high - 1])
             column = (1.0 - weight) * values[:, high - 1] + weight * values[:, high]
         known = np.isfinite(column)
-        return np.asarray(self.pedal_pct, dtype=np.float64)[known], column[known]
+        return levels[known], column[known]
 
 
 @dataclass(frozen=True)
