@@ -401,7 +401,7 @@ class ControlServer:
             action=request.action,
             step=request.step,
         )
-        if request.step == "pedals" and reply.get("accepted"):
+        if request.step.partition("@")[0] == "pedals" and reply.get("accepted"):
             session.sweeping = request.action == "start"
         return reply
 

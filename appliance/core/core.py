@@ -338,16 +338,23 @@ class ControlCore:
         pedals step also arms (and its stop disarms) the pedal sweep, a source whose
         wishes they judge like any other's. Told to the request listeners, so replay taps
         the same cycles and runs the same sweep."""
+        # "pedals@N": the sweep resumed from its run N (the step's name as the tap knows it
+        # before the @; the whole text is what the recorder keeps, so replay resumes too).
+        base, resumed, run_text = step.partition("@")
         if action == "start":
-            refusal = self._sweep_refusal() if step == "pedals" else None
+            refusal = self._sweep_refusal(run_text) if base == "pedals" else None
+            if resumed and base != "pedals":
+                refusal = f"only the pedal sweep resumes from a run, not {base!r}"
             if refusal is not None:
                 accepted, message = False, refusal
             else:
-                accepted, message = self.maneuver.start(step, now_s)
-            if accepted and step == "pedals" and self.sweep is not None:
-                self.sweep.reset()
+                accepted, message = self.maneuver.start(base, now_s)
+            if accepted and base == "pedals" and self.sweep is not None:
+                self.sweep.reset(int(run_text) if resumed else 0)
                 self.sweeping = True
-                message += "; the pedal sweep is armed: engage, then SPEED + to run it"
+                message += "; the pedal sweep is armed"
+                message += f" from run {self.sweep.run + 1}" if resumed else ""
+                message += ": engage, then SPEED + to run it"
         elif action == "stop":
             accepted, message = self.maneuver.stop(now_s)
             if accepted and self.sweeping:
@@ -370,9 +377,10 @@ class ControlCore:
             listener("maneuver", f"{action}:{step}", now_s, accepted, message)
         return accepted, message
 
-    def _sweep_refusal(self) -> str | None:
+    def _sweep_refusal(self, run_text: str = "") -> str | None:
         """Why the pedal sweep may not be armed now (None: it may): only on the pedals
-        path, from READY (not engaged: the operator engages knowingly, after), standing."""
+        path, from READY (not engaged: the operator engages knowingly, after), standing;
+        a resumed one from one of its runs."""
         if self.sweep is None:
             return (
                 'the pedal sweep needs speed_path = "pedals" (here the PC104 closes the speed loop)'
@@ -384,6 +392,9 @@ class ControlCore:
             return "the vehicle file's [pedal_sweep] does not fit its limits: " + "; ".join(
                 problems
             )
+        runs = self.sweep.params.runs
+        if run_text and not (run_text.isdigit() and int(run_text) < runs):
+            return f"the pedal sweep resumes from a run 0..{runs - 1}, not {run_text!r}"
         if self.state.mode is not Mode.READY:
             return f"the pedal sweep starts from READY, not {self.state.mode}"
         m = self._measured

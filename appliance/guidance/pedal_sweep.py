@@ -116,8 +116,12 @@ class PedalSweep:
         self.params = params
         self.reset()
 
-    def reset(self) -> None:
-        self.run = 0
+    def reset(self, first_run: int = 0) -> None:
+        """From the start, or from ``first_run`` (a resumed maneuver: the runs before it
+        are in its samples already)."""
+        if not 0 <= first_run < self.params.runs:
+            raise ValueError(f"the sweep has runs 0..{self.params.runs - 1}, not {first_run}")
+        self.run = first_run
         self.phase = SweepPhase.STOPPING
         self._since_s: float | None = None  # when the current phase began
         self._still_since_s: float | None = None

@@ -127,6 +127,11 @@ class PedalsStep(HandStep):
             f"brake {coverage.brake_cells_full}/{coverage.brake_counts.size}",
         )
 
+    def start_step(self) -> str:
+        """A resumed run goes on from the first run its samples did not finish (the
+        daemon's sweep counts finished runs in each sample)."""
+        return f"pedals@{self._run}" if 0 < self._run < self._runs else "pedals"
+
     def complete(self) -> bool:
         return self._done and self._speed_mps is not None and abs(self._speed_mps) < STANDING_MPS
 

@@ -60,6 +60,10 @@ class ManeuverStep(Protocol):
 
     def preconditions(self, status: Mapping[str, Any]) -> list[str]: ...
 
+    def start_step(self) -> str:
+        """What the start request names: the step, or where a resumed run goes on from."""
+        ...
+
     def reset(self) -> None: ...
 
     def update(self, sample: Mapping[str, Any]) -> str | None:
@@ -187,7 +191,7 @@ class ManeuverRunner:
                 self.say(f"  starting in {left} ...")
                 await asyncio.sleep(1.0)
         reply = await self.client.call(
-            {"op": "maneuver", "action": "start", "step": self.step.name}
+            {"op": "maneuver", "action": "start", "step": self.step.start_step()}
         )
         if not reply.get("accepted"):
             raise RefusedError(f"the daemon refused: {reply.get('message') or reply.get('error')}")

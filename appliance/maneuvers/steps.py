@@ -101,6 +101,11 @@ class HandStep(ABC):
     def reset(self) -> None:
         """Forget every sample taken (a fit starts from this too)."""
 
+    def start_step(self) -> str:
+        """The daemon is told the step's name: a step by hand resumes by itself (its
+        samples so far are taken again before the run goes on)."""
+        return self.name
+
     def preconditions(self, status: Mapping[str, Any]) -> list[str]:
         problems = []
         mode = str(status.get("mode"))

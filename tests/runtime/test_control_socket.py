@@ -505,6 +505,12 @@ async def test_a_pedal_sweep_is_disarmed_when_its_connection_drops(short_tmp: Pa
             lambda: served.api.requests == ["maneuver:start:pedals", "maneuver:stop:pedals"]
         )
         served.api.requests.clear()
+        async with ControlClient(path) as client:  # a resumed one likewise
+            await client.call({"op": "maneuver", "action": "start", "step": "pedals@2"})
+        await wait_until(
+            lambda: served.api.requests == ["maneuver:start:pedals@2", "maneuver:stop:pedals"]
+        )
+        served.api.requests.clear()
         async with ControlClient(path) as client:  # stopped properly, or another step
             await client.call(start)
             await client.call({"op": "maneuver", "action": "stop", "step": "pedals"})

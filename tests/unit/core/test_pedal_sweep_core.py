@@ -148,3 +148,23 @@ def test_under_hold_to_move_the_sweep_has_the_pedals_only_while_held() -> None:
     out = vehicle.step(core)
     assert core.last_sweep.phase is SweepPhase.PAUSED
     assert throttle_pct(out) == 0.0 and brake_pct(out) > 0.0  # the controlled stop
+
+
+def test_a_resumed_sweep_goes_on_from_the_run_it_names() -> None:
+    core, vehicle = bench()
+    runs = core.sweep.params.runs if core.sweep is not None else 0
+    for step, why in (
+        (f"pedals@{runs}", f"run 0..{runs - 1}"),
+        ("pedals@x", "not 'x'"),
+        ("pot-map@1", "only the pedal sweep resumes"),
+    ):
+        accepted, message = core.maneuver_request("start", step, vehicle.now_s)
+        assert not accepted and why in message, message
+    accepted, message = core.maneuver_request("start", "pedals@2", vehicle.now_s)
+    assert accepted and "from run 3" in message
+    assert core.maneuver.step == "pedals" and core.sweep is not None and core.sweep.run == 2
+    into_speed_hold(core, vehicle)
+    vehicle.run(core, 1.5)
+    assert core.last_sweep is not None and core.last_sweep.run == 2
+    assert core.last_sweep.phase is SweepPhase.THROTTLE
+    assert core.last_sweep.throttle_pct == CONFIG.pedal_sweep.throttle_levels_pct[2 % 3]

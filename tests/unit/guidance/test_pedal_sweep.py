@@ -136,6 +136,14 @@ def test_taking_the_pedals_away_restarts_the_run_from_standstill() -> None:
     )
 
 
+def test_a_sweep_resumes_from_a_run_of_its_own() -> None:
+    sweep = PedalSweep(PARAMS)
+    sweep.reset(first_run=2)
+    assert (sweep.run, sweep.phase) == (2, SweepPhase.STOPPING)
+    with pytest.raises(ValueError, match=r"runs 0\.\.2"):
+        sweep.reset(first_run=PARAMS.runs)
+
+
 def test_the_last_run_ends_done_holding_the_brake() -> None:
     sweep = PedalSweep(PARAMS)
     sweep.run = PARAMS.runs - 1

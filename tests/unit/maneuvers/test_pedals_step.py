@@ -81,6 +81,9 @@ def test_samples_the_sweep_did_not_drive_are_not_taken() -> None:
     problem = step.take({**base, "mode": "speed_hold", "sweep_phase": None})
     assert problem is not None and "not running the pedal sweep" in problem
     assert not step.complete()
+    assert step.start_step() == "pedals"  # nothing finished: from the start
+    step.take({**base, "mode": "speed_hold", "sweep_phase": "throttle", "sweep_run": 3})
+    assert step.start_step() == "pedals@3"  # a resumed run goes on from run 3
     step.take({**base, "speed_mps": 0.0, "mode": "speed_hold", "sweep_phase": "done"})
     assert step.complete()
 
