@@ -6,7 +6,8 @@ and presses SPEED + (holding the engage button where the vehicle uses hold-to-mo
 the daemon runs the sweep's levels through its usual arbitration and limits; anything that
 takes the pedals away (a brake tap, the wheel, the override, a fault) pauses it. This side
 only watches: it files each cycle in which the sweep had the pedals (SPEED_HOLD, a throttle,
-coast or brake phase) as a sample of measured actuator positions and speed, shows the
+boost, descend, coast or brake phase) as a sample of measured actuator positions and speed,
+shows the
 grid filling, and fits when the sweep says it is done (``calibration.pedal_map``: its
 method, its rejections, its verdict). The map's grid is the vehicle file's
 ``[pedal_sweep]``, the coasting 0 % level added to both pedals.
@@ -20,6 +21,7 @@ from typing import Any
 import numpy as np
 
 from appliance.config.calibration_pedals import PedalMapTable, PedalsCalibration
+from appliance.config.pedal_models import PedalSweepSettings
 from appliance.maneuvers.merge import StepResult
 from appliance.maneuvers.report import FitReport, item_record
 from appliance.maneuvers.runner import Progress
@@ -31,16 +33,16 @@ SWEEP_PHASES = frozenset({"throttle", "boost", "descend", "coast", "brake"})
 STANDING_MPS = 0.1
 
 
-def map_params(context_sweep: Any) -> PedalMapParams:
+def map_params(sweep: PedalSweepSettings) -> PedalMapParams:
     """The fit's grid from the vehicle file's ``[pedal_sweep]``: its levels and 0 %
     (coasting, in both maps), its bands, its actuators' settling."""
     return PedalMapParams(
-        throttle_levels_pct=(0.0, *context_sweep.throttle_levels_pct),
-        brake_levels_pct=(0.0, *(b for b in context_sweep.brake_levels_pct if b > 0.0)),
-        speed_band_edges_mps=context_sweep.speed_band_edges_mps,
-        traction_settle_s=context_sweep.traction_settle_s,
-        brake_settle_s=context_sweep.brake_settle_s,
-        min_levels_per_band=context_sweep.min_levels_per_band,
+        throttle_levels_pct=(0.0, *sweep.throttle_levels_pct),
+        brake_levels_pct=(0.0, *(b for b in sweep.brake_levels_pct if b > 0.0)),
+        speed_band_edges_mps=sweep.speed_band_edges_mps,
+        traction_settle_s=sweep.traction_settle_s,
+        brake_settle_s=sweep.brake_settle_s,
+        min_levels_per_band=sweep.min_levels_per_band,
     )
 
 
