@@ -29,7 +29,7 @@ from appliance.daemon import Daemon, RunResult
 from appliance.modes import Mode
 from appliance.operator_page import OperatorPage, scans_document
 from tests.browser.conftest import PageProblems
-from tests.runtime.test_daemon_control import free_port
+from tests.runtime.inline import isolated
 
 with contextlib.suppress(ImportError):  # the `browser` fixture fails, saying how to install it
     from playwright.async_api import Browser, Page, expect
@@ -244,14 +244,7 @@ async def test_the_page_says_when_the_daemon_is_not_reachable(browser: Browser) 
 
 @pytest.mark.slow
 async def test_the_page_beside_the_real_daemon_shows_ready_then_engaged(browser: Browser) -> None:
-    config = load_config("flatbed-sim")
-    devices = config.devices.model_copy(
-        update={
-            "lms111_left": config.devices.lms111_left.model_copy(update={"port": free_port()}),
-            "lms111_right": config.devices.lms111_right.model_copy(update={"port": free_port()}),
-        }
-    )
-    config = config.model_copy(update={"devices": devices})
+    config = isolated(load_config("flatbed-sim"))
     directory = tempfile.mkdtemp(prefix="dbw-", dir="/tmp")
     daemon = Daemon(config, control_socket=str(Path(directory) / "control.sock"), record=False)
     run: asyncio.Future[RunResult] = asyncio.ensure_future(daemon.run(handle_signals=False))

@@ -17,7 +17,6 @@ import contextlib
 import json
 import math
 import shutil
-import socket
 import sys
 import tempfile
 import time
@@ -40,6 +39,7 @@ from appliance.modes import Mode
 from appliance.supervisor import ServiceState
 from drivers.actuators.messages import BrakeCommand, BrakeTelemetry, Lamps, SteeringMode
 from drivers.pc104.messages import HighLevelState, MotionPattern
+from tests.runtime.inline import isolated
 from tests.runtime.twin_view import TwinView
 from tools.fake_notify import FakeNotifySocket
 
@@ -140,27 +140,13 @@ class Sim:
         await self.twins.act("press", button=button)
 
 
-def free_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as probe:
-        probe.bind(("127.0.0.1", 0))
-        port: int = probe.getsockname()[1]
-        return port
-
-
 def isolated_sim_config() -> VehicleConfig:
     """The sim profile as shipped, on free scanner ports (parallel runs).
 
     The PC104 link needs no isolation: it runs through a simulated SLCAN adapter on a
     pty in the simulated vehicle's own directory.
     """
-    config = load_config("sim")
-    devices = config.devices.model_copy(
-        update={
-            "lms111_left": config.devices.lms111_left.model_copy(update={"port": free_port()}),
-            "lms111_right": config.devices.lms111_right.model_copy(update={"port": free_port()}),
-        }
-    )
-    return config.model_copy(update={"devices": devices})
+    return isolated(load_config("sim"))
 
 
 @contextlib.asynccontextmanager

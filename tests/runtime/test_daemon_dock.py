@@ -22,8 +22,8 @@ from appliance.daemon import Daemon, RunResult
 from appliance.guidance.docking import DockingParams, teeth_inside
 from appliance.modes import Mode
 from drivers.geometry import Pose2D
+from tests.runtime.inline import isolated
 from tests.runtime.shared_machine import for_shared_machine
-from tests.runtime.test_daemon_control import free_port
 from tests.runtime.twin_view import TwinView
 
 READY_TIMEOUT_S = 40.0
@@ -36,13 +36,7 @@ pytestmark = [pytest.mark.slow, pytest.mark.timeout(READY_TIMEOUT_S + DOCK_TIMEO
 
 
 def dock_config(start_gap_m: float = 3.0, pose_loop: str = "hl") -> VehicleConfig:
-    config = load_config("flatbed-sim")
-    devices = config.devices.model_copy(
-        update={
-            "lms111_left": config.devices.lms111_left.model_copy(update={"port": free_port()}),
-            "lms111_right": config.devices.lms111_right.model_copy(update={"port": free_port()}),
-        }
-    )
+    config = isolated(load_config("flatbed-sim"))
     front_forward_m = config.geometry.length_m / 2.0
     simulation = config.simulation.model_copy(
         update={
@@ -53,7 +47,7 @@ def dock_config(start_gap_m: float = 3.0, pose_loop: str = "hl") -> VehicleConfi
     )
     docking = config.docking.model_copy(update={"pose_loop": pose_loop})
     return for_shared_machine(
-        config.model_copy(update={"devices": devices, "simulation": simulation, "docking": docking})
+        config.model_copy(update={"simulation": simulation, "docking": docking})
     )
 
 

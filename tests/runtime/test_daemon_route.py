@@ -23,8 +23,8 @@ from appliance.localization.local_frame import LocalFrame
 from appliance.modes import AUTOMATIC_MODES, Mode
 from appliance.routes import RouteStore
 from appliance.routes.store import builtin_routes_dir
+from tests.runtime.inline import isolated
 from tests.runtime.shared_machine import for_shared_machine
-from tests.runtime.test_daemon_control import free_port
 from tests.runtime.test_daemon_dock import running, until
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(180.0)]
@@ -35,13 +35,7 @@ FOLLOW_S = 20.0
 
 def route_config() -> VehicleConfig:
     config = load_config("husky-sim")
-    devices = config.devices.model_copy(
-        update={
-            "lms111_left": config.devices.lms111_left.model_copy(update={"port": free_port()}),
-            "lms111_right": config.devices.lms111_right.model_copy(update={"port": free_port()}),
-        }
-    )
-    return for_shared_machine(config.model_copy(update={"devices": devices}))
+    return for_shared_machine(isolated(config))
 
 
 def distance_to_polyline_m(points: np.ndarray, x_m: float, y_m: float) -> float:

@@ -16,7 +16,8 @@ import pytest
 
 from appliance.daemon import Daemon
 from appliance.modes import Mode
-from tests.runtime.test_daemon_control import free_port, isolated_sim_config
+from tests.runtime.inline import free_port
+from tests.runtime.test_daemon_control import isolated_sim_config
 from tests.runtime.test_live_view import WsClient
 
 pytestmark = pytest.mark.slow

@@ -24,7 +24,7 @@ from appliance.config import load_config
 from appliance.core.core import ControlCore
 from appliance.core.inputs import ControlInputs
 from appliance.live_view import LiveView, RateGate, check_host
-from tests.runtime.test_daemon_control import free_port
+from tests.runtime.inline import free_port
 
 
 class WsClient:
