@@ -163,18 +163,19 @@ class PedalSweep:
             timed_out = now_s - self._since_s >= p.max_throttle_s
             if speed >= p.top_speed_mps:
                 self._enter(SweepPhase.COAST, now_s)
-            elif self._plateaued(speed, now_s) or timed_out:
+            elif self._gained_less(speed, now_s, p.plateau_gain_mps) or timed_out:
                 self._low_from_mps = speed
                 self._enter(SweepPhase.BOOST, now_s)
         elif self.phase is SweepPhase.BOOST:
             if speed >= p.top_speed_mps or now_s - self._since_s >= p.max_throttle_s:
                 descend = self._low_from_mps is not None and not self._descended
                 self._enter(SweepPhase.DESCEND if descend else SweepPhase.COAST, now_s)
-                self._plateau_from = (now_s, speed)
+                self._plateau_from = (now_s, -speed)  # the descent watches the speed fall
         elif self.phase is SweepPhase.DESCEND:
             low = self._low_from_mps if self._low_from_mps is not None else 0.0
             timed_out = now_s - self._since_s >= p.max_throttle_s
-            if speed <= low or self._stopped_falling(speed, now_s) or timed_out:
+            stopped_falling = self._gained_less(-speed, now_s, p.plateau_gain_mps)
+            if speed <= low or stopped_falling or timed_out:
                 self._descended = True
                 self._enter(SweepPhase.BOOST, now_s)
         elif self.phase is SweepPhase.COAST:
@@ -205,19 +206,14 @@ class PedalSweep:
             case _:
                 return self._command(self.phase, 0.0, p.hold_brake_pct)
 
-    def _plateaued(self, speed: float, now_s: float) -> bool:
+    def _gained_less(self, value: float, now_s: float, gain: float) -> bool:
+        """Once per ``plateau_s`` window: did ``value`` (the speed rising, or its negative
+        falling) gain less than ``gain`` over the window that just closed?"""
         start = self._plateau_from
         if start is None or now_s - start[0] < self.params.plateau_s:
             return False
-        self._plateau_from = (now_s, speed)
-        return speed - start[1] < self.params.plateau_gain_mps
-
-    def _stopped_falling(self, speed: float, now_s: float) -> bool:
-        start = self._plateau_from
-        if start is None or now_s - start[0] < self.params.plateau_s:
-            return False
-        self._plateau_from = (now_s, speed)
-        return start[1] - speed < self.params.plateau_gain_mps
+        self._plateau_from = (now_s, value)
+        return value - start[1] < gain
 
     def _enter(self, phase: SweepPhase, now_s: float | None) -> None:
         self.phase = phase

@@ -20,6 +20,7 @@ from typing import Any
 
 import numpy as np
 
+from appliance.config import parts
 from appliance.config.calibration_pedals import PedalMapTable, PedalsCalibration
 from appliance.config.pedal_models import PedalSweepSettings
 from appliance.maneuvers.merge import StepResult
@@ -66,10 +67,7 @@ class PedalsStep(HandStep):
         self.accumulator = PedalMapAccumulator(map_params(self.context.config.pedal_sweep))
         self._phase: str | None = None
         self._run = 0
-        self._runs = max(
-            len(self.context.config.pedal_sweep.throttle_levels_pct),
-            len(self.context.config.pedal_sweep.brake_levels_pct),
-        )
+        self._runs = parts.pedal_sweep_params(self.context.config).runs
         self._done = False
         self._speed_mps: float | None = None
 
