@@ -35,7 +35,7 @@ from drivers.geometry import Pose2D
 from drivers.pc104 import protocol
 from tests.hil.test_daemon_vcan import _LOG_LINE, PROJECT_ROOT, dbw, stop_all, tool, wait_for
 from tests.hil.test_pc104_vcan import crc8_sae_j1850_bitwise
-from tests.runtime.test_daemon_control import free_port
+from tests.runtime.inline import free_port
 
 START_GAP_M = 3.0
 DOCK_TIMEOUT_S = 200.0  # about 45 s on an idle machine; user-mode Linux is slower

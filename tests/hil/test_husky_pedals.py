@@ -35,7 +35,7 @@ from tests.hil.test_dock_vcan import (
     start_daemon,
     status,
 )
-from tests.runtime.test_daemon_control import free_port
+from tests.runtime.inline import free_port
 
 LOCK_MPS = 2.0  # the operator drives up to this, then presses +
 HOLD_S = 12.0
