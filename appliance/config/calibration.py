@@ -51,6 +51,7 @@ from pydantic import (
 
 from appliance.config.calibration_items import CalibrationItems
 from appliance.config.calibration_pedals import PedalsCalibration
+from appliance.guidance.pure_pursuit import LookaheadSchedule
 from calibration.pot_map import (
     MAX_POT_TO_WHEEL_COEFFS,
     wheel_rad_at,
@@ -166,10 +167,53 @@ class CounterSteerCalibration(_Model):
     k_ratio: float | None = Field(None, ge=0.0, le=1.5)
 
 
+class LookaheadScheduleCalibration(_Model):
+    """The tracker's look-ahead ``L(v) = clamp(offset + gain v, min, max)`` as tuned on the
+    vehicle (`dbw calibrate lookahead`, Stanley et al. Fig. 20)."""
+
+    offset_m: float = Field(ge=-20.0, le=50.0)
+    gain_s: float = Field(ge=0.0, le=10.0)
+    min_m: float = Field(gt=0.0, le=50.0)
+    max_m: float = Field(gt=0.0, le=100.0)
+
+    @model_validator(mode="after")
+    def _ordered(self) -> Self:
+        if self.max_m < self.min_m:
+            raise ValueError(f"max_m ({self.max_m}) must not be below min_m ({self.min_m})")
+        return self
+
+    def schedule(self) -> LookaheadSchedule:
+        return LookaheadSchedule(self.offset_m, self.gain_s, self.min_m, self.max_m)
+
+
+class ServoTorqueBaseline(_Model):
+    """The steering servo's load at tuning time (``calibration.servo_torque``): the
+    look-ahead holds for this servo; a later comparison flags re-tuning (Fig. 21)."""
+
+    c0_nm: float = Field(ge=-1e3, le=1e3)
+    c_wheel_nm_per_rad: float = Field(ge=-1e3, le=1e3)
+    c_rate_nm_s_per_rad: float = Field(ge=-1e3, le=1e3)
+    hard_wheel_rad: float = Field(ge=0.0, le=100.0)
+    hard_rate_rad_per_s: float = Field(ge=0.0, le=100.0)
+    stall_fraction: float = Field(ge=0.0, le=1.0)
+    residual_rms_nm: float = Field(ge=0.0, le=1e3)
+    moving_samples: int = Field(ge=1)
+
+
 class GuidanceCalibration(_Model):
-    """Guidance parameters tuned on the vehicle (a later maneuver)."""
+    """Guidance parameters tuned on the vehicle. ``look_ahead_m`` (older files): a
+    constant look-ahead; ``look_ahead`` (the tuning's schedule) wins where both are."""
 
     look_ahead_m: float | None = Field(None, gt=0.0, le=50.0)
+    look_ahead: LookaheadScheduleCalibration | None = None
+    servo_torque: ServoTorqueBaseline | None = None
+
+    def schedule(self) -> LookaheadSchedule | None:
+        if self.look_ahead is not None:
+            return self.look_ahead.schedule()
+        if self.look_ahead_m is not None:
+            return LookaheadSchedule(self.look_ahead_m, 0.0, self.look_ahead_m, self.look_ahead_m)
+        return None
 
 
 def _is_utc(value: datetime, name: str) -> datetime:
@@ -256,7 +300,8 @@ class Calibration:
     steering_ratio: float
     wheel_to_tyre_coeffs: tuple[float, ...] | None = None
     counter_steer_k_ratio: float | None = None
-    guidance_look_ahead_m: float | None = None
+    guidance_schedule: LookaheadSchedule | None = None  # None: the tracker's defaults
+    guidance: GuidanceCalibration | None = None
     scanners: ScannersCalibration | None = None
     pedals: PedalsCalibration | None = None
 
@@ -278,7 +323,8 @@ class Calibration:
                 else tuple(float(c) for c in steering.wheel_to_tyre_coeffs)
             ),
             counter_steer_k_ratio=model.counter_steer.k_ratio if model.counter_steer else None,
-            guidance_look_ahead_m=model.guidance.look_ahead_m if model.guidance else None,
+            guidance_schedule=model.guidance.schedule() if model.guidance else None,
+            guidance=model.guidance,
             scanners=model.scanners,
             pedals=model.pedals,
         )

@@ -180,6 +180,16 @@ def _allowed(info: FieldInfo) -> str:
     return ""
 
 
+def _toml_value(value: object) -> str:
+    """A value as TOML writes it: JSON's spelling for scalars and arrays, but a table in
+    an array (``lookahead_tuning.conditions``) inline as ``{key = value}``."""
+    if isinstance(value, dict):
+        return "{" + ", ".join(f"{k} = {_toml_value(v)}" for k, v in value.items()) + "}"
+    if isinstance(value, list | tuple):
+        return "[" + ", ".join(_toml_value(v) for v in value) + "]"
+    return json.dumps(value)
+
+
 def to_toml(data: dict[str, object], prefix: str = "") -> str:
     """Render the effective config in TOML so it can be copied into a vehicle file."""
     # TOML has no null: an optional field left unset is simply not written.
@@ -189,7 +199,7 @@ def to_toml(data: dict[str, object], prefix: str = "") -> str:
     if prefix and scalars:
         lines.append(f"[{prefix}]")
     for key, value in scalars.items():
-        lines.append(f"{key} = {json.dumps(value)}")
+        lines.append(f"{key} = {_toml_value(value)}")
     out = "\n".join(lines)
     for key, value in tables.items():
         assert isinstance(value, dict)

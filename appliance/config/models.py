@@ -19,6 +19,7 @@ from typing import Annotated, Literal, Self
 from pydantic import AwareDatetime, BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from appliance.config.pedal_models import PedalSweepSettings, SimPedals, sweep_limit_problems
+from appliance.config.tuning_models import LookaheadTuningSettings
 from drivers.actuators.steering_model import ServoParams
 from drivers.gnss.client import BAUDRATES_BPS as GNSS_BAUDRATES_BPS
 from drivers.pc104.endpoint import SLCAN_BITRATES_BPS, CanInterface
@@ -585,6 +586,7 @@ class VehicleConfig(_Model):
     positioning: Positioning = Positioning()
     route: RouteFollowing = RouteFollowing()
     pedal_sweep: PedalSweepSettings = PedalSweepSettings()
+    lookahead_tuning: LookaheadTuningSettings = LookaheadTuningSettings()
     # How speed is commanded: "pc104" sends a speed set-point to the vehicle's own PC104
     # (the flat-bed); "pedals" closes the speed loop here on the throttle and brake
     # actuators (the Husky, whose engine throttle was its autopilot's speed control).

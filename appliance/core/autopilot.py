@@ -108,8 +108,9 @@ def _dock_source(config: VehicleConfig, calibration: Calibration | None) -> Auto
     return DockAutopilot(source)
 
 
-def _route_source(config: VehicleConfig, _calibration: Calibration | None) -> AutopilotSource:
-    return RouteAutopilot(config)
+def _route_source(config: VehicleConfig, calibration: Calibration | None) -> AutopilotSource:
+    schedule = None if calibration is None else calibration.guidance_schedule
+    return RouteAutopilot(config, schedule=schedule)
 
 
 SourceFactory = Callable[[VehicleConfig, "Calibration | None"], AutopilotSource]

@@ -22,7 +22,7 @@ by the GNSS/INS, and the PC104 no input at all (not critical, no readiness, no f
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import replace
 from typing import Any
 
@@ -34,6 +34,7 @@ from appliance.core.autopilot import (
     AutopilotSource,
     AutopilotWish,
     Observation,
+    RouteAutopilot,
     default_pattern,
     make_source,
 )
@@ -50,6 +51,7 @@ from appliance.core.observe import (
 from appliance.core.output import CoreOutput, Note
 from appliance.core.panel import PanelDecoder, PanelEvents
 from appliance.core.report import core_status
+from appliance.core.route_tuning import tuning_refusal
 from appliance.guidance.pedal_sweep import PedalSweep, SweepCommand
 from appliance.modes import (
     AUTOMATIC_MODES,
@@ -185,7 +187,9 @@ class ControlCore:
         self.last_output: CoreOutput | None = None
         self.last_refusal: tuple[str, ...] = ()
         self.stale: tuple[str, ...] = ()
-        # A restart disarms the sweep: the client sees it and ends the run.
+        # A restart disarms the sweep and the look-ahead runs: the client sees it and ends.
+        if isinstance(self.autopilot, RouteAutopilot):
+            self.autopilot.stop_tuning(engaged=False)
         self.sweeping = False
         self.last_sweep: SweepCommand | None = None
         # The sweep ended under automatic control: straight ahead, the controller stopping
@@ -261,7 +265,11 @@ class ControlCore:
         self.last_output = output
         if self.maneuver.active:
             sweep = self.last_sweep if self.sweeping else None
-            self.maneuver.update(inputs, fresh, m, output, stale, self.faults.active_faults, sweep)
+            tuning = wish.status.get("tuning") if self.maneuver.step == "lookahead" else None
+            tuning = tuning if isinstance(tuning, Mapping) else None
+            self.maneuver.update(
+                inputs, fresh, m, output, stale, self.faults.active_faults, sweep, tuning
+            )
         return output
 
     # ---- bench requests (the control socket) -------------------------------------------
@@ -342,13 +350,23 @@ class ControlCore:
         # before the @; the whole text is what the recorder keeps, so replay resumes too).
         base, resumed, run_text = step.partition("@")
         if action == "start":
-            refusal = self._sweep_refusal(run_text) if base == "pedals" else None
-            if resumed and base != "pedals":
-                refusal = f"only the pedal sweep resumes from a run, not {base!r}"
+            refusal = None
+            if base == "pedals":
+                refusal = self._sweep_refusal(run_text)
+            elif base == "lookahead":
+                refusal = tuning_refusal(self.config, self.autopilot, self.state.mode, run_text)
+            elif resumed:
+                refusal = f"only the pedal sweep and the look-ahead runs resume, not {base!r}"
             if refusal is not None:
                 accepted, message = False, refusal
             else:
                 accepted, message = self.maneuver.start(base, now_s)
+            if accepted and base == "lookahead" and isinstance(self.autopilot, RouteAutopilot):
+                armed, said = self.autopilot.start_tuning(int(run_text) if resumed else 0)
+                message += "; " + said
+                if not armed:  # a run past the list's end
+                    self.maneuver.stop(now_s)
+                    accepted, message = False, said
             if accepted and base == "pedals" and self.sweep is not None:
                 self.sweep.reset(int(run_text) if resumed else 0)
                 self.sweeping = True
@@ -357,6 +375,8 @@ class ControlCore:
                 message += ": engage, then SPEED + to run it"
         elif action == "stop":
             accepted, message = self.maneuver.stop(now_s)
+            if accepted and isinstance(self.autopilot, RouteAutopilot):
+                message += self.autopilot.stop_tuning(self.state.mode in AUTOMATIC_MODES)
             if accepted and self.sweeping:
                 self.sweeping = False
                 message += "; the pedal sweep is disarmed"

@@ -66,6 +66,12 @@ class ManeuverSample:
     # The pedal sweep's phase and run (0-based), while it is armed; None otherwise.
     sweep_phase: str | None = None
     sweep_run: int | None = None
+    # The look-ahead runs' phase and run (0-based) while armed, the anchor's cross-track
+    # error against the run's course (left positive) and the look-ahead the tracker used.
+    tune_phase: str | None = None
+    tune_run: int | None = None
+    cross_track_m: float | None = None
+    lookahead_m: float | None = None
 
     def as_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -87,6 +93,7 @@ def make_sample(
     stale: Iterable[str],
     faults: Iterable[str],
     sweep: SweepCommand | None = None,
+    tuning: Mapping[str, Any] | None = None,
 ) -> ManeuverSample:
     """One cycle's sample: raw readings where fresh, and what the core commanded."""
     steering = inputs.steering if "steering.pot" in fresh else None
@@ -123,7 +130,25 @@ def make_sample(
         fix_quality=None if gnss is None else str(gnss.quality),
         sweep_phase=None if sweep is None else str(sweep.phase),
         sweep_run=None if sweep is None else sweep.run,
+        tune_phase=None if tuning is None else _text(tuning.get("phase")),
+        tune_run=None if tuning is None else _integer(tuning.get("run")),
+        cross_track_m=None if tuning is None else _number(tuning.get("cross_track_m")),
+        lookahead_m=None if tuning is None else _number(tuning.get("lookahead_m")),
     )
+
+
+def _text(value: object) -> str | None:
+    return value if isinstance(value, str) else None
+
+
+def _integer(value: object) -> int | None:
+    return value if isinstance(value, int) and not isinstance(value, bool) else None
+
+
+def _number(value: object) -> float | None:
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        return None
+    return _finite(float(value))
 
 
 class ManeuverTap:
@@ -176,10 +201,13 @@ class ManeuverTap:
         stale: Iterable[str],
         faults: Iterable[str],
         sweep: SweepCommand | None = None,
+        tuning: Mapping[str, Any] | None = None,
     ) -> None:
         if not self.active:
             return
-        sample = make_sample(self.next_seq, inputs, fresh, measured, output, stale, faults, sweep)
+        sample = make_sample(
+            self.next_seq, inputs, fresh, measured, output, stale, faults, sweep, tuning
+        )
         self.next_seq += 1
         self._ring.append(sample)
         for listener in self.listeners:

@@ -16,13 +16,15 @@ it once (by its sequence number), whatever the control rate.
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
 
 from appliance.config.models import VehicleConfig
+from appliance.core.route_tuning import RouteTuning
 from appliance.core.wish import AutopilotWish, Observation
-from appliance.guidance.pure_pursuit import PursuitParams
+from appliance.guidance.pure_pursuit import LookaheadSchedule, PursuitParams
 from appliance.guidance.route_follow import RouteFollower, RouteFollowParams
 from appliance.guidance.speed_profile import SpeedProfileParams
 from appliance.localization.gnss_quality import FixVerdictParams, fix_verdict
@@ -45,11 +47,17 @@ WINDOW_RADIUS_M = 30.0  # the operator page's route view is 60 m across
 WINDOW_POINTS = 400
 
 
-def follow_params(config: VehicleConfig) -> RouteFollowParams:
-    """The chain's parameters from the vehicle file (tuning at the modules' defaults)."""
+def follow_params(
+    config: VehicleConfig, schedule: LookaheadSchedule | None = None
+) -> RouteFollowParams:
+    """The chain's parameters from the vehicle file; the look-ahead ``schedule`` tuned on
+    the vehicle where there is one (the calibration file's), else the tracker's default."""
     positioning, route = config.positioning, config.route
+    pursuit = PursuitParams.from_config(config)
+    if schedule is not None:
+        pursuit = replace(pursuit, schedule=schedule)
     return RouteFollowParams(
-        pursuit=PursuitParams.from_config(config),
+        pursuit=pursuit,
         profile=SpeedProfileParams(lateral_accel_mps2=route.lateral_accel_mps2),
         fix=FixVerdictParams(
             max_fix_age_s=positioning.max_fix_age_s,
@@ -72,14 +80,21 @@ class RouteAutopilot:
 
     name = "route"
 
-    def __init__(self, config: VehicleConfig, store: RouteStore | None = None) -> None:
+    def __init__(
+        self,
+        config: VehicleConfig,
+        store: RouteStore | None = None,
+        schedule: LookaheadSchedule | None = None,
+    ) -> None:
         origin = config.positioning.origin
         if origin is None:
             raise ValueError("the route source needs positioning.origin")
         self.config = config
         self.frame = LocalFrame(origin.lat_deg, origin.lon_deg, origin.alt_m)
         self.store = store if store is not None else RouteStore(routes_dir(config))
-        self.params = follow_params(config)
+        self.params = follow_params(config, schedule)
+        # The look-ahead tuning's runs, while `dbw calibrate lookahead` has them armed.
+        self.tuning: RouteTuning | None = None
         self.max_speed_mps = min(config.limits.max_speed_mps, config.engagement.max_set_speed_mps)
         self.route: Route | None = None
         self.follower: RouteFollower | None = None
@@ -118,8 +133,39 @@ class RouteAutopilot:
         self.selection_problem = ""
         return True, f"route {route.name!r} selected ({route.length_m:.0f} m)"
 
+    # ---- the look-ahead tuning -------------------------------------------------------
+    def start_tuning(self, first_run: int) -> tuple[bool, str]:
+        """Arm the tuning's runs from ``first_run``: the source drives their courses (laid
+        where the vehicle stands) until :meth:`stop_tuning`."""
+        params = self.config.lookahead_tuning.params(self.lookahead_floor_m())
+        runs = len(params.runs)
+        if not 0 <= first_run < runs:
+            return False, f"the look-ahead tuning has runs 0..{runs - 1}, not {first_run}"
+        self.tuning = RouteTuning(self.params, params, first_run)
+        return True, f"the look-ahead tuning is armed at run {first_run + 1} of {runs}"
+
+    def stop_tuning(self, engaged: bool) -> str:
+        """Disarm: at once when not engaged; engaged, the course is kept at speed 0 (the
+        vehicle stops and holds on it) until the operator disengages."""
+        tuning = self.tuning
+        if tuning is None:
+            return ""
+        if engaged:
+            tuning.stopping = True
+            return "; stopping on the tuning course: disengage to take over"
+        self.tuning = None
+        return ""
+
+    def lookahead_floor_m(self) -> float:
+        """The tracker's own floor (full lock must still reach the goal), whatever the
+        schedule's minimum."""
+        tiny = replace(self.params.pursuit.schedule, min_m=1e-3)
+        return replace(self.params.pursuit, schedule=tiny).lookahead_floor_m
+
     # ---- the seam ----------------------------------------------------------------------
     def reset(self) -> None:
+        if self.tuning is not None:
+            self.tuning.reset(self._last_speed_mps, self._last_steer_rad)
         if self.follower is not None:
             self.follower.reset(self._last_speed_mps, self._last_steer_rad)
 
@@ -128,6 +174,14 @@ class RouteAutopilot:
         steer = observation.steer_tyre_rad
         self._last_speed_mps = speed if speed is not None and math.isfinite(speed) else 0.0
         self._last_steer_rad = steer if steer is not None and math.isfinite(steer) else 0.0
+        tuning = self.tuning
+        if tuning is not None:
+            if tuning.stopping and not observation.engaged:
+                self.tuning = None
+            else:
+                tuned = tuning.update(observation, speed, self._last_steer_rad)
+                self._last_pose = tuned.pose or self._last_pose
+                return tuned
         follower = self.follower
         if follower is None:
             return AutopilotWish(ready=False, reason=self.selection_problem, status=self._status())

@@ -24,12 +24,17 @@ argument and nothing here does I/O.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy.typing as npt
 
-from appliance.guidance.pure_pursuit import PurePursuitTracker, PursuitParams, TrackerOutput
+from appliance.guidance.pure_pursuit import (
+    LookaheadSchedule,
+    PurePursuitTracker,
+    PursuitParams,
+    TrackerOutput,
+)
 from appliance.guidance.route_planner import (
     AllowedDirections,
     PlannerOutput,
@@ -141,6 +146,22 @@ class RouteFollower:
         self.tracker.reset(front_steer_rad)
         self.speed.reset(speed_mps)
         self._last_now_s: float | None = None
+
+    def replace_route(self, route_enu_m: npt.ArrayLike) -> None:
+        """Follow another route from the next cycle on, on the same localization (the
+        look-ahead tuning's courses, laid at the vehicle and moved sideways mid-run): the
+        direction is decided anew; the tracker and the speed target go on as they were,
+        so the wheel and the speed do not jump at the change."""
+        self.planner.set_route(route_enu_m, self.planner.allowed)
+        self.route_m = self.planner.route_m
+        for direction in TravelDirection:
+            if self.planner.allowed in ("both", direction.value):
+                self._curve_table(direction)
+
+    def set_schedule(self, schedule: LookaheadSchedule) -> None:
+        """Another look-ahead schedule (a tuning run's candidate), from a fresh tracker."""
+        self.params = replace(self.params, pursuit=replace(self.params.pursuit, schedule=schedule))
+        self.tracker = PurePursuitTracker(self.params.pursuit)
 
     def reset_localization(self) -> None:
         """Forget every fix (a restart, a new origin): nothing is ready until fixes come."""

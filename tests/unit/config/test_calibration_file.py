@@ -35,6 +35,7 @@ from appliance.config.calibration_file import (
     read_calibration_file,
     write_calibration,
 )
+from appliance.guidance.pure_pursuit import LookaheadSchedule
 from calibration.pot_map import MAX_POT_TO_WHEEL_COEFFS
 
 # The example of the format's documentation, as raw TOML values, table by table.
@@ -249,7 +250,7 @@ def test_missing_schema_version_is_refused() -> None:
             "pot_centre_counts",
         ),
         ({"vehicle_nmae": '"sim"'}, "vehicle_nmae", "vehicle_name"),
-        ({"guidance.look_ahead": "4.0"}, "guidance.look_ahead", "look_ahead_m"),
+        ({"guidance.lookahead_m": "4.0"}, "guidance.lookahead_m", "look_ahead_m"),
         ({"stearing.steering_ratio": "18.0"}, "stearing", "steering"),
     ],
 )
@@ -330,7 +331,8 @@ def test_wheel_angle_is_the_polynomial_of_the_offset(example: Calibration) -> No
         (0.0055 * d + 1.2e-10 * d**3) / 18.0
     )
     assert example.counter_steer_k_ratio == 0.63
-    assert example.guidance_look_ahead_m == 4.0
+    # An older file's constant look-ahead: the schedule at that length at every speed.
+    assert example.guidance_schedule == LookaheadSchedule(4.0, 0.0, 4.0, 4.0)
 
 
 @pytest.mark.parametrize("counts", [399.0, 399.999, 3860.001, 4095.0, -1.0, math.nan, math.inf])

@@ -63,19 +63,19 @@ def test_requests_are_told_to_the_listeners_and_refusals_say_why() -> None:
     # This vehicle's PC104 closes its speed loop: no pedals of ours to sweep.
     accepted, message = core.maneuver_request("start", "pedals", 0.0)
     assert not accepted and 'speed_path = "pedals"' in message
-    assert core.maneuver_request("start", "lookahead", 0.0)[0]
+    assert core.maneuver_request("start", "k-ratio", 0.0)[0]
     assert core.maneuver_request("start", "pot-map", 0.0) == (
         False,
-        "maneuver 'lookahead' is running: stop it first",
+        "maneuver 'k-ratio' is running: stop it first",
     )
-    assert core.maneuver_request("jump", "lookahead", 0.0)[0] is False
+    assert core.maneuver_request("jump", "k-ratio", 0.0)[0] is False
     assert told == [
         ("maneuver", "stop:pot-map", False),
         ("maneuver", "start:warp", False),
         ("maneuver", "start:pedals", False),
-        ("maneuver", "start:lookahead", True),
+        ("maneuver", "start:k-ratio", True),
         ("maneuver", "start:pot-map", False),
-        ("maneuver", "jump:lookahead", False),
+        ("maneuver", "jump:k-ratio", False),
     ]
 
 

@@ -156,7 +156,7 @@ def test_a_resumed_sweep_goes_on_from_the_run_it_names() -> None:
     for step, why in (
         (f"pedals@{runs}", f"run 0..{runs - 1}"),
         ("pedals@x", "not 'x'"),
-        ("pot-map@1", "only the pedal sweep resumes"),
+        ("pot-map@1", "only the pedal sweep and the look-ahead runs resume"),
     ):
         accepted, message = core.maneuver_request("start", step, vehicle.now_s)
         assert not accepted and why in message, message
