@@ -20,8 +20,6 @@ from appliance.guidance.lookahead_tuning import TuningParams, TuningRun
 from appliance.guidance.pure_pursuit import LookaheadSchedule
 from calibration.lookahead import LookaheadParams, candidate_grid
 
-MPH = 0.44704
-
 
 class _Model(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True, validate_default=True)
@@ -40,7 +38,7 @@ _PAPER_CONDITIONS = tuple(
 
 
 class LookaheadTuningSettings(_Model):
-    speeds_mps: tuple[float, ...] = Field((5 * MPH, 10 * MPH), min_length=1)
+    speeds_mps: tuple[float, ...] = Field((2.235, 4.47), min_length=1)  # 5 and 10 mph
     conditions: tuple[TuningCondition, ...] = Field(_PAPER_CONDITIONS, min_length=1)
     # The candidates L(v) = clamp(offset + gain v, min, max): every offset with every
     # gain (schedules alike at every test speed are one).

@@ -24,6 +24,7 @@ import numpy as np
 from appliance.config.models import VehicleConfig
 from appliance.core.route_tuning import RouteTuning
 from appliance.core.wish import AutopilotWish, Observation
+from appliance.guidance.lookahead_tuning import TuningParams
 from appliance.guidance.pure_pursuit import LookaheadSchedule, PursuitParams
 from appliance.guidance.route_follow import RouteFollower, RouteFollowParams
 from appliance.guidance.speed_profile import SpeedProfileParams
@@ -73,6 +74,15 @@ def follow_params(
         engage_max_distance_m=route.max_engage_distance_m,
         engage_max_heading_rad=math.radians(route.max_engage_heading_deg),
     )
+
+
+def tuning_params(config: VehicleConfig) -> TuningParams:
+    """The look-ahead tuning's runs for ``config`` (the daemon's, the step's and the
+    simulation's: one list, so a run's number means the same run everywhere)."""
+    pursuit = PursuitParams.from_config(config)
+    tiny = replace(pursuit.schedule, min_m=1e-3)
+    floor_m = replace(pursuit, schedule=tiny).lookahead_floor_m  # full lock's, whatever min
+    return config.lookahead_tuning.params(floor_m)
 
 
 class RouteAutopilot:
@@ -137,7 +147,7 @@ class RouteAutopilot:
     def start_tuning(self, first_run: int) -> tuple[bool, str]:
         """Arm the tuning's runs from ``first_run``: the source drives their courses (laid
         where the vehicle stands) until :meth:`stop_tuning`."""
-        params = self.config.lookahead_tuning.params(self.lookahead_floor_m())
+        params = tuning_params(self.config)
         runs = len(params.runs)
         if not 0 <= first_run < runs:
             return False, f"the look-ahead tuning has runs 0..{runs - 1}, not {first_run}"
@@ -155,12 +165,6 @@ class RouteAutopilot:
             return "; stopping on the tuning course: disengage to take over"
         self.tuning = None
         return ""
-
-    def lookahead_floor_m(self) -> float:
-        """The tracker's own floor (full lock must still reach the goal), whatever the
-        schedule's minimum."""
-        tiny = replace(self.params.pursuit.schedule, min_m=1e-3)
-        return replace(self.params.pursuit, schedule=tiny).lookahead_floor_m
 
     # ---- the seam ----------------------------------------------------------------------
     def reset(self) -> None:

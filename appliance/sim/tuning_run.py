@@ -17,13 +17,13 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
 from appliance.config.models import VehicleConfig
 from appliance.config.tuning_models import LookaheadTuningSettings
-from appliance.core.route_autopilot import follow_params
+from appliance.core.route_autopilot import follow_params, tuning_params
 from appliance.core.route_tuning import RouteTuning
 from appliance.core.wish import Observation
 from appliance.guidance.lookahead_samples import RunSample
@@ -65,10 +65,7 @@ def run_tuning(
     """Drive runs ``first_run``..``last_run`` (inclusive; None: to the end)."""
     started = time.perf_counter()
     follow = follow_params(config)
-    floor = replace(
-        follow.pursuit, schedule=replace(follow.pursuit.schedule, min_m=1e-3)
-    ).lookahead_floor_m
-    params = settings.params(floor)
+    params = tuning_params(config.model_copy(update={"lookahead_tuning": settings}))
     last = len(params.runs) - 1 if last_run is None else last_run
     tuning = RouteTuning(follow, params, first_run)
     plant = husky_plant(config, 0.3)
