@@ -57,6 +57,7 @@ from calibration.pot_map import (
     wheel_rad_at,
     wheel_slope_rad_per_count,
 )
+from calibration.servo_torque import TorqueStats
 
 SCHEMA_VERSION: Final = 1
 POT_FULL_SCALE_COUNTS = 4095  # 12-bit ADC
@@ -198,6 +199,33 @@ class ServoTorqueBaseline(_Model):
     stall_fraction: float = Field(ge=0.0, le=1.0)
     residual_rms_nm: float = Field(ge=0.0, le=1e3)
     moving_samples: int = Field(ge=1)
+
+    def stats(self) -> TorqueStats:
+        """As ``calibration.servo_torque`` compares it."""
+        return TorqueStats(
+            coeffs=(self.c0_nm, self.c_wheel_nm_per_rad, self.c_rate_nm_s_per_rad),
+            residual_rms_nm=self.residual_rms_nm,
+            hard_wheel_rad=self.hard_wheel_rad,
+            hard_rate_rad_per_s=self.hard_rate_rad_per_s,
+            moving=self.moving_samples,
+            stalls=0,
+            stall_fraction=self.stall_fraction,
+            rejected={},
+        )
+
+    @classmethod
+    def of(cls, stats: TorqueStats) -> ServoTorqueBaseline:
+        c0, c_wheel, c_rate = stats.coeffs
+        return cls(
+            c0_nm=c0,
+            c_wheel_nm_per_rad=c_wheel,
+            c_rate_nm_s_per_rad=c_rate,
+            hard_wheel_rad=stats.hard_wheel_rad,
+            hard_rate_rad_per_s=stats.hard_rate_rad_per_s,
+            stall_fraction=stats.stall_fraction,
+            residual_rms_nm=stats.residual_rms_nm,
+            moving_samples=stats.moving,
+        )
 
 
 class GuidanceCalibration(_Model):

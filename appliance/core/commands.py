@@ -71,6 +71,12 @@ class CommandPaths:
         self.calibration = calibration
         self.pattern = pattern
         self.max_steer_rad = math.radians(config.limits.max_steer_angle_deg)
+        # Never aimed past what the calibration's pot map covers (inside the steering's
+        # lock): a servo held against its lock reports a position error, and a tyre angle
+        # the pot cannot read back is not one the safety rules can check.
+        self.steer_range_rad = (
+            (-math.inf, math.inf) if calibration is None else calibration.valid_tyre_range_rad
+        )
         self.max_speed_mps = max_speed_mps
         self.hold_to_move = config.engagement.hold_to_move
         self.steering_loop = SteeringLoop(config.docking.pose_loop)
@@ -133,6 +139,9 @@ class CommandPaths:
         request = ActuatorCommand(wish.steer_tyre_rad if automatic else None, 0.0, 0.0)
         chosen = arbitrate(operator, safe, request if automatic else None, automatic, False)
         steer_request = None if chosen is None else chosen.steer_angle_rad
+        if steer_request is not None and math.isfinite(steer_request):
+            low, high = self.steer_range_rad
+            steer_request = min(max(steer_request, low), high)
         limited, violations = self.limiter.update(
             ActuatorCommand(steer_request, 0.0, 0.0),
             m.speed_mps if m.speed_mps is not None else 0.0,

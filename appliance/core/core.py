@@ -52,6 +52,7 @@ from appliance.core.output import CoreOutput, Note
 from appliance.core.panel import PanelDecoder, PanelEvents
 from appliance.core.report import core_status
 from appliance.core.route_tuning import tuning_refusal
+from appliance.core.torque_watch import TorqueWatch
 from appliance.guidance.pedal_sweep import PedalSweep, SweepCommand
 from appliance.modes import (
     AUTOMATIC_MODES,
@@ -80,9 +81,7 @@ from appliance.modes import (
     refusal_reasons,
     step,
 )
-from drivers.actuators.messages import (
-    Buttons,
-)
+from drivers.actuators.messages import Buttons, SteeringMode
 from drivers.pc104.messages import ControlSource
 from safety.arbitration import OperatorInput
 from safety.consistency import CounterDeltas, SteeringTrackingMonitor
@@ -156,6 +155,10 @@ class ControlCore:
         # The pedal sweep (`dbw calibrate pedals`): the one maneuver that drives, armed by
         # its maneuver request, its wish judged like any source's.
         self.sweep = PedalSweep(parts.pedal_sweep_params(config)) if self.pedals else None
+        # The servo's load against the look-ahead tuning's (Fig. 21), where it has one.
+        guidance = None if calibration is None else calibration.guidance
+        baseline = None if guidance is None else guidance.servo_torque
+        self.torque_watch = None if baseline is None else TorqueWatch(baseline.stats())
         self.reset()
 
     def reset(self) -> None:
@@ -196,6 +199,9 @@ class ControlCore:
         # and holding, until the operator takes over (not the configured source, which
         # may refuse where the sweep left the vehicle and fault a vehicle at rest).
         self.sweep_ended_engaged = False
+        if self.torque_watch is not None:
+            self.torque_watch.reset()
+        self._torque_retune: bool | None = None
 
     # ---- the cycle --------------------------------------------------------------------
     def step(self, inputs: ControlInputs, now_s: float) -> CoreOutput:
@@ -263,6 +269,8 @@ class ControlCore:
         output = self.commands.update(self.state, operator, m, wish, tuple(self._notes), now_s)
         self._notes = []
         self.last_output = output
+        if self.torque_watch is not None:
+            self._watch_torque(output, m, now_s, self.torque_watch)
         if self.maneuver.active:
             sweep = self.last_sweep if self.sweeping else None
             tuning = wish.status.get("tuning") if self.maneuver.step == "lookahead" else None
@@ -271,6 +279,18 @@ class ControlCore:
                 inputs, fresh, m, output, stale, self.faults.active_faults, sweep, tuning
             )
         return output
+
+    def _watch_torque(
+        self, output: CoreOutput, m: Measurements, now_s: float, watch: TorqueWatch
+    ) -> None:
+        steering = output.steering.mode is SteeringMode.POSITION
+        made = watch.update(now_s, steering, m.servo_position_rad, m.servo_torque_nm)
+        if made is not None and made.retune != self._torque_retune:
+            self._torque_retune = made.retune
+            if made.retune:
+                self._note("servo_torque_changed", reasons=list(made.reasons), then="re-tune")
+            else:
+                self._note("servo_torque_as_tuned", change_pct=round(100 * made.relative_change))
 
     # ---- bench requests (the control socket) -------------------------------------------
     def request(self, name: str, now_s: float) -> tuple[bool, str]:
@@ -446,6 +466,8 @@ class ControlCore:
             method = getattr(self.autopilot, extra, None)
             if method is not None and isinstance(pilot, dict):  # for the operator page
                 pilot[extra] = method()
+        if self.torque_watch is not None:
+            document["servo_torque"] = self.torque_watch.status()
         maneuver = self.maneuver.status()
         if maneuver is not None:
             document["maneuver"] = maneuver

@@ -162,7 +162,7 @@ class LookaheadStep(HandStep):
         choice = choose_lookahead(collected.runs, self.context.config.lookahead_tuning.fit_params())
         comparison = None
         if before is not None and isinstance(torque, TorqueStats):
-            comparison = compare_torque(_stats_of(before), torque)
+            comparison = compare_torque(before.stats(), torque)
         used = sum(1 for s in self._samples if s.phase == "test" and s.run in collected.complete)
         return lookahead_report(
             choice, collected.rejected, missing, torque, comparison, used, raw_data
@@ -181,33 +181,6 @@ def _torque(rows: list[tuple[float, float, float]]) -> TorqueStats | str:
         return torque_stats(wheel, rate, torque)
     except ValueError as exc:
         return str(exc)
-
-
-def _stats_of(baseline: ServoTorqueBaseline) -> TorqueStats:
-    return TorqueStats(
-        coeffs=(baseline.c0_nm, baseline.c_wheel_nm_per_rad, baseline.c_rate_nm_s_per_rad),
-        residual_rms_nm=baseline.residual_rms_nm,
-        hard_wheel_rad=baseline.hard_wheel_rad,
-        hard_rate_rad_per_s=baseline.hard_rate_rad_per_s,
-        moving=baseline.moving_samples,
-        stalls=0,
-        stall_fraction=baseline.stall_fraction,
-        rejected={},
-    )
-
-
-def _baseline(stats: TorqueStats) -> ServoTorqueBaseline:
-    c0, c_wheel, c_rate = stats.coeffs
-    return ServoTorqueBaseline(
-        c0_nm=c0,
-        c_wheel_nm_per_rad=c_wheel,
-        c_rate_nm_s_per_rad=c_rate,
-        hard_wheel_rad=stats.hard_wheel_rad,
-        hard_rate_rad_per_s=stats.hard_rate_rad_per_s,
-        stall_fraction=stats.stall_fraction,
-        residual_rms_nm=stats.residual_rms_nm,
-        moving_samples=stats.moving,
-    )
 
 
 def lookahead_report(
@@ -274,7 +247,7 @@ def lookahead_report(
             ).model_dump()
         }
         if isinstance(torque, TorqueStats):
-            values["guidance.servo_torque"] = _baseline(torque).model_dump()
+            values["guidance.servo_torque"] = ServoTorqueBaseline.of(torque).model_dump()
         best = min(scores)
         worst_rms = max(r.rms_m for c in choice.candidates if c.candidate == chosen for r in c.runs)
         record = item_record(

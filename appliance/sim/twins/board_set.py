@@ -10,11 +10,13 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import math
 import os
 import shutil
 import tempfile
 import time
 from collections.abc import Callable
+from dataclasses import replace
 from typing import Any
 
 from appliance.config.models import VehicleConfig
@@ -74,10 +76,21 @@ class ActuatorTwins:
         cls, config: VehicleConfig, world: SimWorld | None, directory: str | None = None
     ) -> ActuatorTwins:
         steering = config.simulation.steering
+        # The servo slews at least as fast as the vehicle file lets the daemon steer (and
+        # as the simulated vehicle's own model turns its tyres): a servo slower than the
+        # limit lags every hard turn until the tracking rule calls it a fault, which a real
+        # installation avoids by setting limits.max_steer_rate_deg_per_s to what its servo
+        # does.
+        servo = ServoParams()
+        needed_rad_per_s = (
+            1.1 * math.radians(config.limits.max_steer_rate_deg_per_s) * servo.steering_ratio
+        )
+        servo = replace(servo, max_rate_rad_per_s=max(servo.max_rate_rad_per_s, needed_rad_per_s))
         twins = cls(
             world,
             directory,
             command_timeout_s=config.safety.lower_layer_command_timeout_s,
+            servo_params=servo,
             pot_mapping=PotMapping(centre_counts=steering.pot_centre_counts),
             encoder_offset_rad=steering.encoder_offset_rad,
             linkage_cubic=steering.linkage_cubic,

@@ -45,6 +45,7 @@ from drivers.actuators.twin import BoardTwin
 
 POSITION_ERROR_RAD = 0.2
 POSITION_ERROR_AFTER_S = 0.5
+FOLLOWING_SHARE = 0.5  # moving slower than this share of the loop's rate: not following
 OVERRIDE_MARGIN_PCT = 5.0
 HOST_LOST_TEXT = "HOST LOST"
 
@@ -121,6 +122,7 @@ class SteeringTwin(BoardTwin[SteeringCommand]):
 
     def _update(self, now_s: float, dt_s: float) -> None:
         target = self._target()
+        before_rad = self.servo.motor_rad
         self.servo = step_servo(self.servo, target, dt_s, self.params, self.torque_scale)
         hands = self._hands_wheel_rad
         if hands is not None:
@@ -133,7 +135,15 @@ class SteeringTwin(BoardTwin[SteeringCommand]):
                 push = push if error > 0 else -push
             self.servo = ServoState(motor_rad=motor, wheel_rad=hands, torque_nm=push)
         error = abs(target.motor_setpoint_rad - self.servo.motor_rad)
-        if target.mode is SteeringMode.POSITION and error > POSITION_ERROR_RAD:
+        # A following error, as a servo drive judges it: far from the setpoint *and* not
+        # getting there at the rate its position loop asks for (held, stalled, at the
+        # lock). Far alone is a servo slewing after a large step, which is no fault.
+        asked_rad_per_s = min(
+            self.params.position_gain_per_s * error, self.params.max_rate_rad_per_s
+        )
+        moved_rad_per_s = abs(self.servo.motor_rad - before_rad) / dt_s if dt_s > 0.0 else 0.0
+        stuck = moved_rad_per_s < FOLLOWING_SHARE * asked_rad_per_s
+        if target.mode is SteeringMode.POSITION and error > POSITION_ERROR_RAD and stuck:
             self._position_error_s += dt_s
         else:
             self._position_error_s = 0.0
