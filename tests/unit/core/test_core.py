@@ -717,3 +717,31 @@ def test_a_thousand_cycles_at_100_hz_run_faster_than_real_time() -> None:
     assert outs[-1].now_s - outs[0].now_s == pytest.approx(9.99)
     assert all(o.mode is Mode.ENGAGED for o in outs)
     assert elapsed_s < 5.0
+
+
+class _FullLock:
+    """A source wishing the steering far past any lock (a large offset, a short look-ahead)."""
+
+    name = "full_lock"
+
+    def reset(self) -> None:
+        pass
+
+    def update(self, observation: Observation) -> AutopilotWish:
+        return AutopilotWish(ready=True, steer_tyre_rad=math.radians(80.0))
+
+
+def test_the_servo_is_never_aimed_past_the_calibrated_pot_range() -> None:
+    data = CONFIG.model_dump()
+    data["limits"]["max_steer_angle_deg"] = 32.0  # the Husky's: past the pot's range
+    wide = VehicleConfig.model_validate(data)
+    core, vehicle = bench(wide, autopilot=_FullLock())
+    vehicle.press(Buttons.ENGAGE)
+    outputs = vehicle.run(core, 3.0)
+    high = SIM_CALIBRATION.valid_tyre_range_rad[1]
+    assert high < math.radians(32.0)  # the pot's range is what stops it, not the limit
+    assert outputs[-1].mode is Mode.ENGAGED
+    assert max(o.steer_tyre_rad or 0.0 for o in outputs) == pytest.approx(high, abs=1e-9)
+    # The wheel angle that tyre angle aims the servo at: the top of the pot's range.
+    top_wheel = SIM_CALIBRATION.valid_wheel_range_rad[1]
+    assert SIM_CALIBRATION.wheel_rad_from_tyre(high) == pytest.approx(top_wheel, abs=1e-6)
