@@ -45,6 +45,22 @@ def render_status(doc: dict[str, Any]) -> str:
         if throttle is not None and brake is not None:
             line += f", throttle {throttle:.0f} %, brake {brake:.0f} %"
         lines.append(line)
+    tuning = as_dict(as_dict(doc.get("autopilot")).get("tuning"))
+    if tuning:  # `dbw calibrate lookahead` has armed the route source's runs
+        lines.append(_tuning_line(tuning))
+    torque = as_dict(doc.get("servo_torque"))
+    if torque:  # the servo's load against the look-ahead tuning's
+        retune, reason = torque.get("retune"), torque.get("reason")
+        change = _finite(torque.get("change_pct"))
+        if retune is True:
+            text = "CHANGED since the look-ahead was tuned: re-tune it"
+        elif retune is False:
+            text = "as tuned" + (f" ({change:+.0f} %)" if change is not None else "")
+        else:
+            text = "not judged yet"
+        if isinstance(reason, str) and reason and retune is not False:
+            text += f" ({clean_text(reason)})"
+        lines.append(f"servo torque: {text}")
     hold = as_dict(doc.get("hold_to_move"))
     if hold.get("required") is True:
         held = "held" if hold.get("held") is True else "not held"
@@ -421,3 +437,19 @@ def clean_text(value: object, limit: int = 160) -> str:
             value = "?"
     text = "".join(ch if ch.isprintable() else "?" for ch in value[: limit + 1])
     return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def _tuning_line(tuning: dict[str, Any]) -> str:
+    phase, run, runs = tuning.get("phase"), tuning.get("run"), tuning.get("runs")
+    line = f"look-ahead runs: {clean_text(phase) if isinstance(phase, str) else '?'}"
+    if isinstance(run, int) and isinstance(runs, int):
+        line += f", run {run + 1}/{runs}"
+    described = tuning.get("describe")
+    if isinstance(described, str):
+        line += f" ({clean_text(described)})"
+    left = _finite(tuning.get("test_left_s"))
+    if left is not None and phase == "test":
+        line += f", {left:.0f} s of test left"
+    if tuning.get("stopping") is True:
+        line += ", stopping on its course: disengage to take over"
+    return line

@@ -304,3 +304,32 @@ def test_an_armed_pedal_sweep_shows_its_phase_run_and_pedals() -> None:
     odd = {"mode": "ready", "pedal_sweep": {"phase": "x\x1b[2J", "run": "2", "brake_pct": None}}
     line = line_with(render_status(odd), "pedal sweep")
     assert "\x1b" not in line and "run" not in line
+
+
+def test_armed_look_ahead_runs_and_the_servo_torque_flag_show() -> None:
+    doc = {
+        "mode": "speed_hold",
+        "autopilot": {
+            "source": "route",
+            "tuning": {
+                "phase": "test",
+                "run": 2,
+                "runs": 36,
+                "describe": "line +3 m at 4.47 m/s, look-ahead 0.5 + 0.6 s x v (min 1.5 m)",
+                "test_left_s": 12.4,
+                "stopping": False,
+            },
+        },
+        "servo_torque": {"retune": True, "change_pct": -22.0, "reason": "the wheel needs less"},
+    }
+    lines = render_status(doc).splitlines()
+    assert (
+        "look-ahead runs: test, run 3/36 (line +3 m at 4.47 m/s, look-ahead 0.5 + 0.6 s x v "
+        "(min 1.5 m)), 12 s of test left"
+    ) in lines
+    assert line_with(render_status(doc), "servo torque").startswith("servo torque: CHANGED")
+    calm = dict(doc, servo_torque={"retune": False, "change_pct": 3.0, "reason": ""})
+    assert "servo torque: as tuned (+3 %)" in render_status(calm).splitlines()
+    odd = dict(doc, autopilot={"tuning": {"phase": 5, "run": "x", "describe": "\x1b[2J"}})
+    line = line_with(render_status(odd), "look-ahead runs")
+    assert "\x1b" not in line and "run " not in line
