@@ -27,7 +27,7 @@ from appliance.guidance.lookahead_samples import RunSample, collect_runs
 from appliance.maneuvers.merge import StepResult
 from appliance.maneuvers.report import FitReport, item_record
 from appliance.maneuvers.runner import Progress
-from appliance.maneuvers.steps import HandStep, bar, sample_number, sample_speed, tail_lines
+from appliance.maneuvers.steps import DrivenStep, bar, sample_number, sample_speed, tail_lines
 from calibration.fit_checks import Verdict
 from calibration.lookahead import LookaheadChoice, choose_lookahead
 from calibration.servo_torque import (
@@ -40,10 +40,9 @@ from calibration.servo_torque import (
 STANDING_MPS = 0.1
 
 
-class LookaheadStep(HandStep):
+class LookaheadStep(DrivenStep):
     name = "lookahead"
     summary = "Line and arc tracking runs, driven by the daemon: the look-ahead schedule."
-    moves_vehicle = True
     needed_inputs: tuple[str, ...] = (
         "board.steering",
         "steering.pot",
@@ -78,22 +77,10 @@ class LookaheadStep(HandStep):
         )
 
     def preconditions(self, status: Mapping[str, Any]) -> list[str]:
-        problems = []
-        config = self.context.config
-        if status.get("vehicle") != config.name:
-            problems.append(
-                f"the daemon runs vehicle {status.get('vehicle')!r}, not {config.name!r}: "
-                "give the right --config"
-            )
-        if config.engagement.autopilot_source != "route":
+        problems = super().preconditions(status)
+        if self.context.config.engagement.autopilot_source != "route":
             problems.append('the look-ahead runs need engagement.autopilot_source = "route"')
-        mode = str(status.get("mode"))
-        if mode not in ("ready", "error", "estop"):
-            problems.append(f"the daemon is in {mode.upper()}: the runs start from READY")
         return problems
-
-    def update(self, sample: Mapping[str, Any]) -> str | None:
-        return self.take(sample)
 
     def take(self, sample: Mapping[str, Any]) -> str | None:
         phase = sample.get("tune_phase")

@@ -26,7 +26,7 @@ from appliance.config.pedal_models import PedalSweepSettings
 from appliance.maneuvers.merge import StepResult
 from appliance.maneuvers.report import FitReport, item_record
 from appliance.maneuvers.runner import Progress
-from appliance.maneuvers.steps import HandStep, bar, sample_number, sample_speed, tail_lines
+from appliance.maneuvers.steps import DrivenStep, bar, sample_number, sample_speed, tail_lines
 from calibration.pedal_map import PedalMapAccumulator, PedalMapParams, PedalMapResult
 from calibration.pedal_map_cells import PedalMap
 
@@ -47,10 +47,9 @@ def map_params(sweep: PedalSweepSettings) -> PedalMapParams:
     )
 
 
-class PedalsStep(HandStep):
+class PedalsStep(DrivenStep):
     name = "pedals"
     summary = "Throttle and brake sweeps, driven by the daemon: the pedal maps."
-    moves_vehicle = True
     needed_inputs: tuple[str, ...] = ("board.throttle", "board.brake")
     instructions: tuple[str, ...] = (
         "pedals: on a long straight level road (up to about 1.2 km for the Husky's sweep,",
@@ -72,30 +71,19 @@ class PedalsStep(HandStep):
         self._speed_mps: float | None = None
 
     def preconditions(self, status: Mapping[str, Any]) -> list[str]:
-        problems = []
+        problems = super().preconditions(status)
         config = self.context.config
-        if status.get("vehicle") != config.name:
-            problems.append(
-                f"the daemon runs vehicle {status.get('vehicle')!r}, not {config.name!r}: "
-                "give the right --config"
-            )
         if config.speed_path != "pedals":
             problems.append(
                 'the pedal sweep needs speed_path = "pedals" (this vehicle\'s PC104 closes '
                 "its own speed loop)"
             )
-        mode = str(status.get("mode"))
-        if mode not in ("ready", "error", "estop"):  # the last two: the runner's checks
-            problems.append(f"the daemon is in {mode.upper()}: the sweep starts from READY")
         speed = status.get("measured_speed_mps")
         if not isinstance(speed, int | float):
             problems.append("no measured speed: is the GNSS/INS receiver fixed?")
         elif abs(speed) > STANDING_MPS:
             problems.append(f"the vehicle is moving ({abs(speed):.2f} m/s): stop first")
         return problems
-
-    def update(self, sample: Mapping[str, Any]) -> str | None:
-        return self.take(sample)
 
     def take(self, sample: Mapping[str, Any]) -> str | None:
         phase = sample.get("sweep_phase")

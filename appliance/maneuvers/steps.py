@@ -157,6 +157,29 @@ class HandStep(ABC):
         )
 
 
+class DrivenStep(HandStep):
+    """A step the daemon drives (the pedal sweep, the look-ahead runs): it runs engaged,
+    so an engagement does not end it, and it is armed from READY."""
+
+    moves_vehicle = True
+
+    def preconditions(self, status: Mapping[str, Any]) -> list[str]:
+        problems = []
+        config = self.context.config
+        if status.get("vehicle") != config.name:
+            problems.append(
+                f"the daemon runs vehicle {status.get('vehicle')!r}, not {config.name!r}: "
+                "give the right --config"
+            )
+        mode = str(status.get("mode"))
+        if mode not in ("ready", "error", "estop"):  # the last two: the runner's checks
+            problems.append(f"the daemon is in {mode.upper()}: {self.name} starts from READY")
+        return problems
+
+    def update(self, sample: Mapping[str, Any]) -> str | None:
+        return self.take(sample)
+
+
 class PotCentreStep(HandStep):
     name = "pot-center"
     summary = "Drive straight along a visual reference: the pot's straight-ahead reading."

@@ -24,7 +24,8 @@ from appliance.config.calibration_file import read_calibration_file, write_calib
 from appliance.config.loader import to_toml
 from appliance.config.simulated_calibration import simulated_calibration
 from appliance.modes import Mode
-from tests.runtime.test_calibrate_steering import dbw, fixed
+from tests.runtime.test_calibrate_pedals import driven_step
+from tests.runtime.test_calibrate_steering import fixed
 from tests.runtime.test_daemon_dock import running, until
 from tests.runtime.test_daemon_route import route_config
 
@@ -98,23 +99,7 @@ async def test_the_daemon_drives_the_runs_and_the_schedule_is_merged(tmp_path: P
     async with running(config) as (daemon, twins):
         socket = str(daemon.control_server.path)
         await until(lambda: fixed(daemon), 10.0, daemon, "a GNSS/INS fix")
-        command = asyncio.create_task(
-            dbw(
-                "calibrate",
-                "lookahead",
-                "--config",
-                str(vehicle_file),
-                "--calibration",
-                str(calfile),
-                "--yes",
-                "--socket",
-                socket,
-                "--samples",
-                str(samples),
-                "--timeout",
-                "150",
-            )
-        )
+        command = driven_step("lookahead", vehicle_file, calfile, socket, samples)
         await until(lambda: bool(tuning(daemon)) or command.done(), 15.0, daemon, "armed")
         assert not command.done(), command.result().output
         # Run 0, broken off in its run-up: laid again where the vehicle stops.

@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from click.testing import Result
 
 from appliance.config import VehicleConfig, load_config
 from appliance.config.calibration_file import read_calibration_file, write_calibration
@@ -63,6 +64,29 @@ def sweep_config(tmp_path: Path) -> tuple[VehicleConfig, Path, Path]:
     return load_config(vehicle_file), vehicle_file, calfile
 
 
+def driven_step(
+    step: str, vehicle_file: Path, calfile: Path, socket: str, samples: Path
+) -> asyncio.Task[Result]:
+    """`dbw calibrate STEP` for a step the daemon drives, confirmed, running meanwhile."""
+    return asyncio.create_task(
+        dbw(
+            "calibrate",
+            step,
+            "--config",
+            str(vehicle_file),
+            "--calibration",
+            str(calfile),
+            "--yes",
+            "--socket",
+            socket,
+            "--samples",
+            str(samples),
+            "--timeout",
+            "150",
+        )
+    )
+
+
 def phase(daemon: Any) -> SweepPhase | None:
     sweep = daemon.core.last_sweep
     return None if sweep is None or not daemon.core.sweeping else sweep.phase
@@ -76,23 +100,7 @@ async def test_the_daemon_sweeps_the_pedals_and_the_fit_finds_the_hidden_ones(
     async with running(config) as (daemon, twins):
         socket = str(daemon.control_server.path)
         await until(lambda: fixed(daemon), 10.0, daemon, "a GNSS/INS fix")
-        command = asyncio.create_task(
-            dbw(
-                "calibrate",
-                "pedals",
-                "--config",
-                str(vehicle_file),
-                "--calibration",
-                str(calfile),
-                "--yes",
-                "--socket",
-                socket,
-                "--samples",
-                str(samples),
-                "--timeout",
-                "150",
-            )
-        )
+        command = driven_step("pedals", vehicle_file, calfile, socket, samples)
         await until(lambda: daemon.core.sweeping or command.done(), 15.0, daemon, "armed")
         assert not command.done(), command.result().output
         assert daemon.core.state.mode is Mode.READY  # armed, but nothing moves yet

@@ -139,7 +139,11 @@ def husky_with(**sections: dict[str, Any]) -> VehicleConfig:
         ({"pedal_sweep": {"throttle_levels_pct": (0.0, 20.0)}}, r"must lie in \(0, 100\]"),
         (
             {
-                "engagement": {"hold_to_move": True, "hold_to_move_stop_distance_m": 5.0},
+                "engagement": {
+                    "hold_to_move": True,
+                    "hold_to_move_stop_distance_m": 5.0,
+                    "max_set_speed_mps": 3.0,
+                },
                 "pedal_sweep": {"top_speed_mps": 4.0},
             },
             "under hold-to-move",
