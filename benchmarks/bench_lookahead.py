@@ -5,11 +5,12 @@ line and arc runs at 0 and ±3 m offsets, 5 and 10 mph, three candidate gains) f
 real time through the daemon's own tuning code on the simulated Husky with fixes of σ 2 cm
 (``appliance.sim.tuning_run``), and fits the daemon's view of the runs (the blended pose's
 cross-track error) as `dbw calibrate lookahead` does. The same runs are then driven for
-every schedule of a finer grid (offsets 0, 0.5, 1 m; gains 0.2 to 1.4 s), same seed, and
+every schedule of a finer grid (offsets 0, 0.5, 1 m; gains 0.3 to 0.8 s in steps of
+0.05 s), same seed, and
 each candidate is judged by the truth (the true anchor's error): the mean over its runs of
 the RMS after capture, and the fit's score (RMS and oscillation).
 
-    python -m benchmarks.bench_lookahead [SEEDS]      # 3 by default, ~3 min each
+    python -m benchmarks.bench_lookahead [SEEDS]      # 3 by default, ~5 min each
 
 Figures, printed and never asserted: the chosen schedule's truth RMS (and score) over the
 best of the exhaustive grid's (the issue's goal: within 10 %), the tuning's runs, their
@@ -32,7 +33,7 @@ from benchmarks.stats import summarize
 from calibration.lookahead import CandidateScore, LookaheadCandidate, choose_lookahead
 
 EXHAUSTIVE = LookaheadTuningSettings(
-    offsets_m=(0.0, 0.5, 1.0), gains_s=tuple(round(0.2 * g, 1) for g in range(1, 8))
+    offsets_m=(0.0, 0.5, 1.0), gains_s=tuple(round(0.3 + 0.05 * g, 2) for g in range(11))
 )
 
 

@@ -43,7 +43,10 @@ class LookaheadTuningSettings(_Model):
     # The candidates L(v) = clamp(offset + gain v, min, max): every offset with every
     # gain (schedules alike at every test speed are one).
     offsets_m: tuple[float, ...] = Field((0.5,), min_length=1)
-    gains_s: tuple[float, ...] = Field((0.3, 0.6, 0.9), min_length=1)
+    # Around the tracker's default schedule (0.5 + 0.5 s x v), 30 % either way: fine enough
+    # to land near the best (on the simulated Husky the score rises steeply below 0.4 s,
+    # the weave, and gently above, the arc cut short), coarse enough for an afternoon.
+    gains_s: tuple[float, ...] = Field((0.35, 0.5, 0.65), min_length=1)
     min_m: float = Field(1.5, gt=0.0, le=50.0)
     max_m: float = Field(12.0, gt=0.0, le=100.0)
     arc_radius_m: float = Field(25.0, gt=2.0, le=500.0)

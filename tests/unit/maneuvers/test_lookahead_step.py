@@ -62,7 +62,7 @@ def test_the_runs_choose_the_middle_gain_and_the_route_source_drives_with_it(
     step = LookaheadStep(StepContext(CONFIG, None))
     report = step.fit(tap_samples(result), "lookahead.jsonl")
     assert report.accepted and report.result is not None, report.lines
-    assert report.figures["chosen"] == {"offset_m": 0.5, "gain_s": 0.6, "min_m": 1.5}
+    assert report.figures["chosen"] == {"offset_m": 0.5, "gain_s": 0.5, "min_m": 1.5}
     scores = report.figures["scores_m"]
     assert scores[1] < min(scores[0], scores[2])
     path = tmp_path / "cal.toml"
@@ -71,10 +71,10 @@ def test_the_runs_choose_the_middle_gain_and_the_route_source_drives_with_it(
     written = read_calibration_file(path, "husky-sim", simulation_enabled=True)
     assert written.items is not None and written.items.lookahead is not None
     calibration = Calibration.from_file(written)
-    assert calibration.guidance_schedule == LookaheadSchedule(0.5, 0.6, 1.5, 12.0)
+    assert calibration.guidance_schedule == LookaheadSchedule(0.5, 0.5, 1.5, 12.0)
     source = make_source(CONFIG, calibration)
     assert isinstance(source, RouteAutopilot)
-    assert source.params.pursuit.schedule == LookaheadSchedule(0.5, 0.6, 1.5, 12.0)
+    assert source.params.pursuit.schedule == LookaheadSchedule(0.5, 0.5, 1.5, 12.0)
 
 
 def test_a_tuning_with_runs_missing_is_refused_and_says_how_many() -> None:
