@@ -14,6 +14,7 @@ capped at 0 (the speed controller stops and holds) until the operator disengages
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 from typing import Any
 
 from appliance.config.models import VehicleConfig
@@ -80,12 +81,12 @@ class RouteTuning:
         if run is not None and not engaged and self._schedule_run != run.index:
             follower.set_schedule(run.schedule)
             self._schedule_run = run.index
-        capped = self.stopping or run is None
-        set_speed = 0.0 if capped or run is None else run.speed_mps
+        set_speed = 0.0 if self.stopping or run is None else run.speed_mps
         wish = follower.update(observation.now_s, speed, set_speed, engaged, steer)
         planned = wish.planner
-        if self.stopping:
-            step = self.last or TuningStep(TuningPhase.DONE, None, len(self.program.params.runs))
+        if self.stopping:  # the course stays as it is: nothing laid, the program not asked
+            last = self.last or TuningStep(TuningPhase.DONE, None, len(self.program.params.runs))
+            step = replace(last, lay=None)
         else:
             progress = None if planned is None else planned.progress_m
             step = self.program.update(engaged, speed, wish.pose, progress, observation.now_s)

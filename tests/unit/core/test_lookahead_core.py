@@ -44,7 +44,10 @@ def test_the_runs_lay_their_course_and_a_stop_engaged_holds_on_it() -> None:
     assert accepted and "stopping on the tuning course" in message
     source = core.autopilot
     assert isinstance(source, RouteAutopilot) and source.tuning is not None
+    assert source.tuning.follower is not None
+    course = source.tuning.follower.route_m
     vehicle.run(core, 0.5)
+    assert source.tuning.follower.route_m is course  # kept: nothing laid while stopping
     assert core.state.mode is Mode.ENGAGED  # still steering along its course, speed 0
     assert core.last_wish is not None and core.last_wish.max_speed_mps == 0.0
     vehicle.press(Buttons.MANUAL_OVERRIDE)
