@@ -21,6 +21,7 @@ BENCHMARKS = [
     "benchmarks.bench_docking",
     "benchmarks.bench_tracking",
     "benchmarks.bench_pedal_sweep",
+    "benchmarks.bench_lookahead",
 ]
 
 
