@@ -42,8 +42,10 @@ The method (:func:`fit_pedal_map`):
    acceleration, more brake never less deceleration) by weighted isotonic regression
    (pool adjacent violators, weights the cells' sample counts); the largest change it
    made is reported, since a big one means the data contradict the map. Empty cells
-   between measured ones are interpolated (and marked); outside them the map stays NaN:
-   an acceleration nobody measured is not extrapolated.
+   between measured ones are filled (and marked): a level measured in another band is
+   carried from the nearest such band along the map's speed slope, one measured nowhere
+   is interpolated along the pedal, both kept monotonic in the band. Outside the measured
+   cells the map stays NaN: an acceleration nobody measured is not extrapolated.
 5. The verdict: every speed band with at least ``min_levels_per_band`` measured levels in
    each map (fewer cannot show the map's shape), the samples' residual rms about their
    cells' lines under ``max_residual_rms_mps2``, and the monotonic adjustment under

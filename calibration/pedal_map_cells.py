@@ -116,6 +116,44 @@ class PedalMap:
         return np.asarray(self.measured.sum(axis=0), dtype=np.intp)
 
 
+def _fill_band(
+    accel: FloatArray,
+    measured: BoolArray,
+    grid: FloatArray,
+    speeds: FloatArray,
+    band: int,
+    slope: float,
+    increasing: bool,
+) -> None:
+    """Fill the band's empty cells between its measured ones, in place.
+
+    A level measured in another band is carried over from the nearest such band along the
+    map's speed slope (what changes with speed is drag and rolling resistance, the same for
+    every pedal: the slope is pooled over the map), kept between the band's measured
+    neighbours so the band stays monotonic. Only a level measured in no band is
+    interpolated along the pedal: a pedal's answer is not a line through its dead band,
+    and a line from coasting to the next level overstates a low throttle by up to 10 % of
+    the map's span (measured on the simulated Husky's shaped pedals).
+    """
+    rows = np.flatnonzero(measured[:, band])
+    if rows.size == 0:
+        return
+    sign = 1.0 if increasing else -1.0  # in sign x accel every band rises with the pedal
+    for level in range(rows[0] + 1, rows[-1]):
+        if measured[level, band]:
+            continue
+        others = np.flatnonzero(measured[level, :])
+        if others.size:
+            nearest = others[np.argmin(np.abs(speeds[others] - speeds[band]))]
+            value = accel[level, nearest] + slope * (speeds[band] - speeds[nearest])
+        else:
+            value = np.interp(grid[level], grid[rows], accel[rows, band])
+        # Between the cell below (measured or just filled) and the next measured above.
+        low = sign * accel[level - 1, band]
+        high = sign * accel[rows[rows > level][0], band]
+        accel[level, band] = sign * min(max(sign * value, low), high)
+
+
 def assemble_map(
     levels: tuple[float, ...],
     band_edges_mps: tuple[float, ...],
@@ -144,12 +182,14 @@ def assemble_map(
         sign = 1.0 if increasing else -1.0  # the brake's acceleration falls with the pedal
         fitted = sign * isotonic(sign * raw[rows, band], counts[rows, band].astype(np.float64))
         adjustment = max(adjustment, float(np.max(np.abs(fitted - raw[rows, band]))))
-        span = np.arange(rows[0], rows[-1] + 1)
-        accel[span, band] = np.interp(grid[span], grid[rows], fitted)
+        accel[rows, band] = fitted
     edges = np.asarray(band_edges_mps)
+    speeds = 0.5 * (edges[:-1] + edges[1:])
+    for band in range(shape[1]):
+        _fill_band(accel, measured, grid, speeds, band, slope, increasing)
     return PedalMap(
         pedal_pct=grid,
-        speed_mps=0.5 * (edges[:-1] + edges[1:]),
+        speed_mps=speeds,
         accel_mps2=accel,
         counts=counts,
         measured=measured,

@@ -19,7 +19,7 @@ from calibration.pedal_map import (
     PedalMapResult,
     fit_pedal_map,
 )
-from calibration.pedal_map_cells import isotonic, local_slope
+from calibration.pedal_map_cells import CellEstimate, assemble_map, isotonic, local_slope
 from tests.unit.calibration.synthetic import PEDAL_VEHICLE, PedalSweep, pedal_sweep, true_accel_mps2
 
 FIGURE = 0.05  # within 5 % of the actuator's full scale (1 m/s² throttle, 3 m/s² brake)
@@ -210,3 +210,31 @@ def _assert_monotonic(pedal_map: PedalMap, increasing: bool) -> None:
 
 def _columns(sweep: PedalSweep) -> tuple[np.ndarray, ...]:
     return sweep.t_s, sweep.speed_mps, sweep.throttle_pct, sweep.brake_pct
+
+
+def test_a_level_missing_in_a_band_is_carried_from_its_nearest_band_along_the_slope() -> None:
+    """A throttle with a dead band: accel = 2.0 max(0, (p - 10) / 90)^1.5 - 0.1 v. The 20 %
+    level is measured in bands 0 and 2, not 1; coasting and 40 % in all three. The carry
+    along the map's slope gives the truth; a line from coasting to 40 % would not."""
+    levels = (0.0, 20.0, 40.0)
+    edges = (0.5, 1.5, 2.5, 3.5)
+    speeds = (1.0, 2.0, 3.0)
+
+    def truth(pct: float, speed: float) -> float:
+        return 2.0 * max(0.0, (pct - 10.0) / 90.0) ** 1.5 - 0.1 * speed
+
+    estimates = {}
+    for level, pct in enumerate(levels):
+        for band, speed in enumerate(speeds):
+            if (level, band) != (1, 1):
+                estimates[level * 3 + band] = CellEstimate(truth(pct, speed), 20, np.zeros(20))
+    pedal_map = assemble_map(levels, edges, (3, 3), estimates, True, -0.1)
+    assert pedal_map.filled[1, 1] and not pedal_map.measured[1, 1]
+    assert pedal_map.accel_mps2[1, 1] == pytest.approx(truth(20.0, 2.0), abs=1e-12)
+    line = 0.5 * (truth(0.0, 2.0) + truth(40.0, 2.0))
+    assert abs(line - truth(20.0, 2.0)) > 0.1  # what the old line through it gave
+    # A level measured nowhere else is still interpolated along the pedal, between its
+    # band's measured neighbours.
+    del estimates[1 * 3 + 0], estimates[1 * 3 + 2]
+    alone = assemble_map(levels, edges, (3, 3), estimates, True, -0.1)
+    assert alone.accel_mps2[1, 1] == pytest.approx(line, abs=1e-12)
