@@ -13,8 +13,9 @@ measured cell with ``appliance.sim.vehicle.pedal_accel_mps2``.
 Figures, printed and never asserted: each map's largest error over its measured cells as
 a percentage of the map's span at the lowest band (coasting to its top level; the issue's
 goal is 5 %), and apart from them over the cells the fit filled in between measured
-levels of a band (a low throttle never reaches the top bands: its cells there are
-interpolated between coasting and the next level, along a line the real curve is not),
+levels of a band (carried from the nearest band where the level was measured, along the
+map's speed slope: the simulated vehicle's drag is the same for every pedal, so on it
+the carry is all but exact; a real vehicle's is as good as that assumption),
 the cells measured, whether the verdict accepted, the sweep's duration (what it takes on the
 vehicle, in simulated seconds) and its distance. The daemon path is the runtime test's
 (``tests/runtime/test_calibrate_pedals.py``, a short sweep); the full sweep through the
