@@ -63,7 +63,7 @@ def tuning(daemon: Any) -> dict[str, Any]:
 
 
 async def drive_run(daemon: Any, twins: Any, run: int) -> None:
-    """Engage when the run is laid, SPEED + to its speed, wait for the stop at its end."""
+    """Engage when the run is laid, then SPEED + up to its speed (the course caps it)."""
     await until(
         lambda: tuning(daemon).get("run") == run and not daemon.core.engage_blockers(),
         10.0,
