@@ -284,7 +284,9 @@ class ControlCore:
         self, output: CoreOutput, m: Measurements, now_s: float, watch: TorqueWatch
     ) -> None:
         steering = output.steering.mode is SteeringMode.POSITION
-        made = watch.update(now_s, steering, m.servo_position_rad, m.servo_torque_nm)
+        made = watch.update(
+            now_s, steering, m.steer_wheel_rad, m.servo_position_rad, m.servo_torque_nm
+        )
         if made is not None and made.retune != self._torque_retune:
             self._torque_retune = made.retune
             if made.retune:

@@ -57,19 +57,25 @@ class TorqueWatch:
         self._since = 0
 
     def update(
-        self, now_s: float, steering: bool, wheel_rad: float | None, torque_nm: float | None
+        self,
+        now_s: float,
+        steering: bool,
+        wheel_rad: float | None,
+        encoder_rad: float | None,
+        torque_nm: float | None,
     ) -> TorqueComparison | None:
-        """One cycle; returns a new comparison when one was made (else None)."""
-        if not steering or wheel_rad is None or torque_nm is None:
+        """One cycle: the wheel's angle (the pot through the calibration), the servo's
+        encoder (its rate: smoother than the pot's, and the encoder's offset does not
+        matter there), the servo's torque. Returns a new comparison when one was made."""
+        values = (now_s, wheel_rad, encoder_rad, torque_nm)
+        if not steering or not all(v is not None and math.isfinite(v) for v in values):
             self._previous = None
             return None
-        if not (math.isfinite(wheel_rad) and math.isfinite(torque_nm) and math.isfinite(now_s)):
-            self._previous = None
-            return None
-        previous, self._previous = self._previous, (now_s, wheel_rad)
+        assert wheel_rad is not None and encoder_rad is not None and torque_nm is not None
+        previous, self._previous = self._previous, (now_s, encoder_rad)
         if previous is None or now_s <= previous[0]:
             return None
-        rate = (wheel_rad - previous[1]) / (now_s - previous[0])
+        rate = (encoder_rad - previous[1]) / (now_s - previous[0])
         self._rows.append((wheel_rad, rate, torque_nm))
         self._since += 1
         if self._since < self.every:

@@ -38,6 +38,7 @@ from calibration.servo_torque import (
 )
 
 STANDING_MPS = 0.1
+MAX_RATE_GAP_S = 0.2  # consecutive cycles (50 Hz) with a few missed: a rate; longer, a gap
 
 
 class LookaheadStep(DrivenStep):
@@ -54,7 +55,9 @@ class LookaheadStep(DrivenStep):
         self.params = tuning_params(self.context.config)
         self.candidates = self.context.config.lookahead_tuning.candidates()
         self._samples: list[RunSample] = []
-        self._torque: list[tuple[float, float, float]] = []  # t, wheel, torque (engaged)
+        # Engaged: t, the wheel (the pot through the calibration), the servo's encoder (for
+        # the rate: smoother than the pot, and its offset does not matter there), torque.
+        self._torque: list[tuple[float, float, float, float]] = []
         self._run = 0
         self._phase: str | None = None
         self._done = False
@@ -107,10 +110,12 @@ class LookaheadStep(DrivenStep):
                 self._speed,
             )
         )
-        wheel = sample_number(sample, "servo_position_rad")
+        wheel = sample_number(sample, "steer_wheel_rad")
+        encoder = sample_number(sample, "servo_position_rad")
         torque = sample_number(sample, "servo_torque_nm")
-        if sample.get("engaged") and wheel is not None and torque is not None:
-            self._torque.append((t_s, wheel, torque))
+        engaged = bool(sample.get("engaged"))
+        if engaged and wheel is not None and encoder is not None and torque is not None:
+            self._torque.append((t_s, wheel, encoder, torque))
         return None
 
     def progress(self) -> Progress:
@@ -156,16 +161,17 @@ class LookaheadStep(DrivenStep):
         )
 
 
-def _torque(rows: list[tuple[float, float, float]]) -> TorqueStats | str:
-    """The servo's load over the engaged samples (the wheel's rate from the encoder)."""
+def _torque(rows: list[tuple[float, float, float, float]]) -> TorqueStats | str:
+    """The servo's load over the engaged samples: the rate between consecutive cycles only
+    (not across the gap between two runs)."""
     if len(rows) < 3:
         return "no servo telemetry while engaged"
-    t, wheel, torque = (np.array(c) for c in zip(*rows, strict=True))
-    keep = np.concatenate(([True], np.diff(t) > 0.0))
-    t, wheel, torque = t[keep], wheel[keep], torque[keep]
-    rate = np.gradient(wheel, t)
+    t, wheel, encoder, torque = (np.array(c) for c in zip(*rows, strict=True))
+    dt = np.diff(t)
+    pairs = (dt > 0.0) & (dt < MAX_RATE_GAP_S)
+    rate = np.diff(encoder)[pairs] / dt[pairs]
     try:
-        return torque_stats(wheel, rate, torque)
+        return torque_stats(wheel[1:][pairs], rate, torque[1:][pairs])
     except ValueError as exc:
         return str(exc)
 

@@ -36,7 +36,8 @@ def verdicts(scale: float) -> list[bool]:
     watch = TorqueWatch(baseline_stats(), window=1500, every=500)
     made = []
     for t, wheel, torque in drive(60.0, scale, phase=1.0):
-        comparison = watch.update(1000.0 + t, True, wheel, torque)
+        # The encoder has a zero of its own (0.7 rad off): only its rate is used.
+        comparison = watch.update(1000.0 + t, True, wheel, wheel + 0.7, torque)
         if comparison is not None:
             made.append(comparison.retune)
     return made
@@ -55,9 +56,9 @@ def test_a_servo_needing_a_third_more_torque_is_flagged() -> None:
 def test_released_steering_and_gaps_add_nothing() -> None:
     watch = TorqueWatch(baseline_stats(), every=10)
     for i in range(100):
-        assert watch.update(i * DT_S, False, 1.0, 2.0) is None
-        assert watch.update(i * DT_S, True, None, 2.0) is None
+        assert watch.update(i * DT_S, False, 1.0, 1.0, 2.0) is None
+        assert watch.update(i * DT_S, True, None, 1.0, 2.0) is None
     assert watch.last is None and watch.status()["retune"] is None
     for i in range(20):  # idle: no torque, nothing to fit
-        watch.update(10.0 + i * DT_S, True, 0.0, 0.0)
+        watch.update(10.0 + i * DT_S, True, 0.0, 0.0, 0.0)
     assert watch.last is None and "samples" in watch.status()["reason"]
