@@ -7,7 +7,8 @@ full set of runs is tested faster than real time on the same tuning code
 ``benchmarks/bench_lookahead.py``. The operator engages and presses SPEED + through the
 bench for each run; an OVERRIDE during the first run's run-up breaks it off, and the same
 run is laid again where the vehicle stands and driven to its end. The schedule merged into
-the calibration file is the candidate, with the runs' residuals and the servo's baseline.
+the calibration file is the candidate, with the runs' residuals and the servo's baseline;
+the flight recording, replayed, gives the same samples and the same choice.
 """
 
 from __future__ import annotations
@@ -18,7 +19,9 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from click.testing import CliRunner
 
+from appliance.cli.main import cli
 from appliance.config import VehicleConfig, load_config
 from appliance.config.calibration_file import read_calibration_file, write_calibration
 from appliance.config.loader import to_toml
@@ -51,6 +54,7 @@ def tuning_config(tmp_path: Path) -> tuple[VehicleConfig, Path, Path]:
     data = base.model_dump(mode="json")
     data["lookahead_tuning"] |= SHORT_TUNING
     data["paths"]["calibration_file"] = str(calfile)
+    data["recording"] |= {"enabled": True, "directory": str(tmp_path / "recordings")}
     vehicle_file = tmp_path / "husky-lookahead.toml"
     vehicle_file.write_text(to_toml(data) + "\n", encoding="utf-8")
     return load_config(vehicle_file), vehicle_file, calfile
@@ -124,6 +128,18 @@ async def test_the_daemon_drives_the_runs_and_the_schedule_is_merged(tmp_path: P
     first_runup = phases.index(("runup", 0))
     assert ("stand", 0) in phases[first_runup:]  # broken off, and run 0 again
     assert ("finish", 0) in phases and phases[-1] == ("done", None)
+
+    # The flight recording gives the same samples back (replay runs the tap and the runs
+    # again over the recorded cycles), and the same choice.
+    recording = sorted((tmp_path / "recordings").glob("*.mcap"))[-1]
+    replayed = CliRunner().invoke(
+        cli, ["calibrate", "fit", str(recording), "--config", str(vehicle_file), "--json"]
+    )
+    assert replayed.exit_code == 0, replayed.output
+    figures = json.loads(next(x for x in replayed.output.splitlines() if x.startswith("{")))
+    assert figures["chosen"] == {"offset_m": 0.5, "gain_s": 0.6, "min_m": 1.5}, figures
+    taken = sum(1 for line in lines if "seq" in line)
+    assert f"the lookahead run replayed, {taken} samples" in replayed.output, replayed.output
 
     written = read_calibration_file(calfile, config.name, simulation_enabled=True)
     assert written.guidance is not None and written.guidance.look_ahead is not None
