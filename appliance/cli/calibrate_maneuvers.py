@@ -98,7 +98,15 @@ def _step_options(command: Any) -> Any:
             "--resume", "resume_path", metavar="FILE", help="Continue an interrupted run."
         ),
         click.option("--yes", is_flag=True, help="Confirm the area is clear without asking."),
-        click.option("--timeout", "timeout_s", type=click.FloatRange(min=1.0), default=900.0),
+        click.option(
+            "--timeout",
+            "timeout_s",
+            type=click.FloatRange(min=1.0),
+            default=None,
+            help="Give up after this many seconds (default: the step's own: 15 min by hand, "
+            "1 h for the pedal sweep, 4 h for the look-ahead runs); the vehicle is left "
+            "safe and --resume goes on.",
+        ),
         click.option("--png", "png_path", metavar="FILE", help="The figure (default: beside)."),
         click.option("--no-merge", is_flag=True, help="Fit and report; leave the file alone."),
     ]
@@ -115,7 +123,7 @@ def _run_step(
     samples_path: str | None,
     resume_path: str | None,
     yes: bool,
-    timeout_s: float,
+    timeout_s: float | None,
     png_path: str | None,
     no_merge: bool,
     extra: dict[str, Any],
@@ -152,7 +160,12 @@ def _run_step(
     async def run() -> Any:
         async with ControlClient(_socket_path(socket_path, config_name), timeout_s=5.0) as client:
             runner = ManeuverRunner(
-                step, client, writer, sys.stdout, timeout_s=timeout_s, confirm=confirm
+                step,
+                client,
+                writer,
+                sys.stdout,
+                timeout_s=step.default_timeout_s if timeout_s is None else timeout_s,
+                confirm=confirm,
             )
             return await runner.run()
 

@@ -44,6 +44,8 @@ MAX_RATE_GAP_S = 0.2  # consecutive cycles (50 Hz) with a few missed: a rate; lo
 class LookaheadStep(DrivenStep):
     name = "lookahead"
     summary = "Line and arc tracking runs, driven by the daemon: the look-ahead schedule."
+    # 36 runs of about a minute, each with a drive back to a start: an afternoon.
+    default_timeout_s = 4 * 3600.0
     needed_inputs: tuple[str, ...] = (
         "board.steering",
         "steering.pot",

@@ -50,6 +50,8 @@ def map_params(sweep: PedalSweepSettings) -> PedalMapParams:
 class PedalsStep(DrivenStep):
     name = "pedals"
     summary = "Throttle and brake sweeps, driven by the daemon: the pedal maps."
+    # Six to eight minutes of driving, and the turns between stretches of road.
+    default_timeout_s = 3600.0
     needed_inputs: tuple[str, ...] = ("board.throttle", "board.brake")
     instructions: tuple[str, ...] = (
         "pedals: on a long straight level road (up to about 1.2 km for the Husky's sweep,",

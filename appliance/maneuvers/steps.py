@@ -90,6 +90,8 @@ class HandStep(ABC):
     extra_options: ClassVar[tuple[Any, ...]] = ()
     instructions: tuple[str, ...] = ()
     moves_vehicle = False
+    # How long a run may take before the command gives up (the vehicle left safe).
+    default_timeout_s: float = 900.0
     needed_inputs: tuple[str, ...] = ("board.steering", "steering.pot")
     tolerated_faults: frozenset[str] = frozenset()
 

@@ -92,3 +92,13 @@ def test_a_resumed_tuning_starts_from_the_run_its_samples_reached() -> None:
         step.take(sample)
     assert step.start_step() == "lookahead@6"
     assert "run 7/12" in step.progress().detail
+
+
+def test_the_default_timeout_leaves_the_default_tuning_an_afternoon() -> None:
+    """36 runs of about a minute's driving (35 min on the simulated Husky), a minute's drive
+    back to a start for each: well inside the command's default, which a hand step's 15
+    minutes would not be."""
+    step = LookaheadStep(StepContext(BASE, None))
+    runs = len(step.params.runs)
+    assert runs == 36
+    assert step.default_timeout_s >= 2106.0 + 60.0 * runs > 900.0
