@@ -328,7 +328,6 @@ class Calibration:
     steering_ratio: float
     wheel_to_tyre_coeffs: tuple[float, ...] | None = None
     counter_steer_k_ratio: float | None = None
-    guidance_schedule: LookaheadSchedule | None = None  # None: the tracker's defaults
     guidance: GuidanceCalibration | None = None
     scanners: ScannersCalibration | None = None
     pedals: PedalsCalibration | None = None
@@ -351,11 +350,15 @@ class Calibration:
                 else tuple(float(c) for c in steering.wheel_to_tyre_coeffs)
             ),
             counter_steer_k_ratio=model.counter_steer.k_ratio if model.counter_steer else None,
-            guidance_schedule=model.guidance.schedule() if model.guidance else None,
             guidance=model.guidance,
             scanners=model.scanners,
             pedals=model.pedals,
         )
+
+    @property
+    def guidance_schedule(self) -> LookaheadSchedule | None:
+        """The look-ahead tuned on the vehicle (None: the tracker's defaults)."""
+        return None if self.guidance is None else self.guidance.schedule()
 
     def scanner(self, name: str) -> ScannerCalibrationEntry | None:
         """The calibration of the ``left`` or ``right`` scanner, or None if it has none.

@@ -79,10 +79,7 @@ def follow_params(
 def tuning_params(config: VehicleConfig) -> TuningParams:
     """The look-ahead tuning's runs for ``config`` (the daemon's, the step's and the
     simulation's: one list, so a run's number means the same run everywhere)."""
-    pursuit = PursuitParams.from_config(config)
-    tiny = replace(pursuit.schedule, min_m=1e-3)
-    floor_m = replace(pursuit, schedule=tiny).lookahead_floor_m  # full lock's, whatever min
-    return config.lookahead_tuning.params(floor_m)
+    return config.lookahead_tuning.params(PursuitParams.from_config(config).turn_floor_m)
 
 
 class RouteAutopilot:

@@ -206,17 +206,21 @@ class PursuitParams:
         return self.wheelbase_m / 2.0 + self.anchor_forward_m
 
     @cached_property
-    def lookahead_floor_m(self) -> float:
-        """The schedule's minimum, raised to where full lock still reaches the goal (once:
-        the parameters are frozen, and it is read every cycle)."""
+    def turn_floor_m(self) -> float:
+        """The shortest look-ahead full lock still reaches, whatever the schedule."""
         k = self.counter_steer_ratio_k
         virtual_axle_from_rear_m = self.wheelbase_m * k / (1.0 + k)
-        turn_floor_m = minimum_lookahead_m(
+        return minimum_lookahead_m(
             minimum_turn_radius_m(self.wheelbase_m, k, self.max_steer_angle_rad),
             self.anchor_from_rear_axle_m - virtual_axle_from_rear_m,
             self.linear_eta_rad,
         )
-        return max(self.schedule.min_m, turn_floor_m)
+
+    @cached_property
+    def lookahead_floor_m(self) -> float:
+        """The schedule's minimum, raised to where full lock still reaches the goal (once:
+        the parameters are frozen, and it is read every cycle)."""
+        return max(self.schedule.min_m, self.turn_floor_m)
 
     def lookahead_m(self, speed_mps: float) -> float:
         return max(self.lookahead_floor_m, self.schedule.lookahead_m(speed_mps))

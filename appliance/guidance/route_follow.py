@@ -131,11 +131,7 @@ class RouteFollower:
         # From the antenna back to the centre (the antenna is not turned on the vehicle).
         self._centre_from_antenna = Pose2D(-params.antenna_forward_m, -params.antenna_left_m, 0.0)
         self.reset_localization()
-        # The route in each direction it may be driven, made now (at the route's
-        # selection) rather than in the first cycle that drives it.
-        for direction in TravelDirection:
-            if allowed in ("both", direction.value):
-                self._curve_table(direction)
+        self._prime_curve_tables()
 
     # ---- resets ------------------------------------------------------------------------
     def reset(self, speed_mps: float = 0.0, front_steer_rad: float = 0.0) -> None:
@@ -154,9 +150,7 @@ class RouteFollower:
         so the wheel and the speed do not jump at the change."""
         self.planner.set_route(route_enu_m, self.planner.allowed)
         self.route_m = self.planner.route_m
-        for direction in TravelDirection:
-            if self.planner.allowed in ("both", direction.value):
-                self._curve_table(direction)
+        self._prime_curve_tables()
 
     def set_schedule(self, schedule: LookaheadSchedule) -> None:
         """Another look-ahead schedule (a tuning run's candidate), from a fresh tracker."""
@@ -286,6 +280,13 @@ class RouteFollower:
             planner=planned,
             pose=centre,
         )
+
+    def _prime_curve_tables(self) -> None:
+        """The route in each direction it may be driven, made now (at the route's
+        selection) rather than in the first cycle that drives it."""
+        for direction in TravelDirection:
+            if self.planner.allowed in ("both", direction.value):
+                self._curve_table(direction)
 
     def _curve_table(self, direction: TravelDirection) -> CurveSpeedTable:
         """The curve speeds along the route driven in ``direction``: made once for the
