@@ -123,20 +123,14 @@ def course_points(
     runup_m = params.runup_m
     after_m = run.speed_mps * params.test_s_for(run) + params.stop_m
     s = np.arange(-params.behind_m, runup_m + after_m + params.spacing_m, params.spacing_m)
-    along = np.minimum(s, runup_m)
-    left = np.zeros_like(s)
-    beyond = s - runup_m
-    bend = beyond > 0.0
-    if run.course == "line":
-        along = s
-    else:
+    along, left = s.copy(), np.full_like(s, shift_left_m)
+    if run.course != "line":
         radius = params.arc_radius_m
         sign = 1.0 if run.course == "arc_left" else -1.0
-        angle = beyond[bend] / radius
-        along = along.copy()
+        bend = s > runup_m
+        angle = (s[bend] - runup_m) / radius
         along[bend] = runup_m + radius * np.sin(angle)
-        left[bend] = sign * radius * (1.0 - np.cos(angle))
-    left = left + shift_left_m
+        left[bend] += sign * radius * (1.0 - np.cos(angle))
     c, s_yaw = math.cos(start.yaw_rad), math.sin(start.yaw_rad)
     east = start.x_m + c * along - s_yaw * left
     north = start.y_m + s_yaw * along + c * left
