@@ -18,6 +18,7 @@ from typing import Annotated, Literal, Self
 
 from pydantic import AwareDatetime, BaseModel, ConfigDict, Field, field_validator, model_validator
 
+from appliance.config.palm_tree_models import PalmTreeDriveSettings, palm_tree_drive_problems
 from appliance.config.pedal_models import PedalSweepSettings, SimPedals, sweep_limit_problems
 from appliance.config.tuning_models import LookaheadTuningSettings
 from drivers.actuators.steering_model import ServoParams
@@ -587,6 +588,7 @@ class VehicleConfig(_Model):
     route: RouteFollowing = RouteFollowing()
     pedal_sweep: PedalSweepSettings = PedalSweepSettings()
     lookahead_tuning: LookaheadTuningSettings = LookaheadTuningSettings()
+    palm_tree_drive: PalmTreeDriveSettings = PalmTreeDriveSettings()
     # How speed is commanded: "pc104" sends a speed set-point to the vehicle's own PC104
     # (the flat-bed); "pedals" closes the speed loop here on the throttle and brake
     # actuators (the Husky, whose engine throttle was its autopilot's speed control).
@@ -680,6 +682,10 @@ class VehicleConfig(_Model):
             # armed (a vehicle that never sweeps must not fail to load over them, nor
             # its copy written out for the simulator's process).
             problems = sweep_limit_problems(self.pedal_sweep, self.limits, self.engagement)
+            if problems:
+                raise ValueError("; ".join(problems))
+        if self.palm_tree_drive.allowed:
+            problems = palm_tree_drive_problems(self.palm_tree_drive, self.limits, self.engagement)
             if problems:
                 raise ValueError("; ".join(problems))
         control_period_s = 1.0 / self.rates.control_hz

@@ -262,6 +262,10 @@ class CommandPaths:
         cap = self.max_speed_mps
         if wish.max_speed_mps is not None:
             cap = min(cap, wish.max_speed_mps)
+        if state.mode is Mode.SPEED_HOLD and wish.speed_mps is not None:
+            # A source's own speed (a NaN or a negative one stands: deny by default).
+            wanted = wish.speed_mps if math.isfinite(wish.speed_mps) else 0.0
+            return min(max(0.0, wanted), cap)
         if state.mode is Mode.SPEED_HOLD and state.set_speed_mps is not None:
             return min(state.set_speed_mps, cap)
         # ENGAGED: speed is the operator's; their throttle pedal is forwarded to the PC104.

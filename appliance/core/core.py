@@ -49,6 +49,7 @@ from appliance.core.observe import (
     pedal_path_problems,
 )
 from appliance.core.output import CoreOutput, Note
+from appliance.core.palm_tree_program import PalmTreeProgram, palm_tree_refusal
 from appliance.core.panel import PanelDecoder, PanelEvents
 from appliance.core.report import core_status
 from appliance.core.route_tuning import tuning_refusal
@@ -195,10 +196,13 @@ class ControlCore:
             self.autopilot.stop_tuning(engaged=False)
         self.sweeping = False
         self.last_sweep: SweepCommand | None = None
-        # The sweep ended under automatic control: straight ahead, the controller stopping
-        # and holding, until the operator takes over (not the configured source, which
-        # may refuse where the sweep left the vehicle and fault a vehicle at rest).
-        self.sweep_ended_engaged = False
+        # The palm tree driven by the daemon (`dbw calibrate palm-tree --auto`), while armed.
+        self.palm: PalmTreeProgram | None = None
+        # A program (the sweep, the palm tree) ended under automatic control: its last
+        # wheel, the controller stopping and holding, until the operator takes over (not
+        # the configured source, which may refuse where the program left the vehicle and
+        # fault a vehicle at rest).
+        self.ended_wish: AutopilotWish | None = None
         if self.torque_watch is not None:
             self.torque_watch.reset()
         self._torque_retune: bool | None = None
@@ -275,8 +279,9 @@ class ControlCore:
             sweep = self.last_sweep if self.sweeping else None
             tuning = wish.status.get("tuning") if self.maneuver.step == "lookahead" else None
             tuning = tuning if isinstance(tuning, Mapping) else None
+            palm = None if self.palm is None else self.palm.last
             self.maneuver.update(
-                inputs, fresh, m, output, stale, self.faults.active_faults, sweep, tuning
+                inputs, fresh, m, output, stale, self.faults.active_faults, sweep, tuning, palm
             )
         return output
 
@@ -366,8 +371,10 @@ class ControlCore:
         """`dbw calibrate STEP` starts (``start``) or ends (``stop``) the tap on the cycles.
         The tap only reads: the mode machine and the safety layer stay as they are. The
         pedals step also arms (and its stop disarms) the pedal sweep, a source whose
-        wishes they judge like any other's. Told to the request listeners, so replay taps
-        the same cycles and runs the same sweep."""
+        wishes they judge like any other's; "palm-tree@N" the palm tree driven by the
+        daemon from its arc N (plain "palm-tree" is the one by hand, only tapped). Told
+        to the request listeners, so replay taps the same cycles and runs the same
+        programs."""
         # "pedals@N": the sweep resumed from its run N (the step's name as the tap knows it
         # before the @; the whole text is what the recorder keeps, so replay resumes too).
         base, resumed, run_text = step.partition("@")
@@ -377,8 +384,16 @@ class ControlCore:
                 refusal = self._sweep_refusal(run_text)
             elif base == "lookahead":
                 refusal = tuning_refusal(self.config, self.autopilot, self.state.mode, run_text)
+            elif base == "palm-tree" and resumed:
+                speed = None if self._measured is None else self._measured.speed_mps
+                refusal = palm_tree_refusal(
+                    self.config, self.calibration, self.state.mode, speed, run_text
+                )
             elif resumed:
-                refusal = f"only the pedal sweep and the look-ahead runs resume, not {base!r}"
+                refusal = (
+                    "only the pedal sweep, the look-ahead runs and the palm tree driven by "
+                    f"the daemon resume, not {base!r}"
+                )
             if refusal is not None:
                 accepted, message = False, refusal
             else:
@@ -395,21 +410,39 @@ class ControlCore:
                 message += "; the pedal sweep is armed"
                 message += f" from run {self.sweep.run + 1}" if resumed else ""
                 message += ": engage, then SPEED + to run it"
+            if accepted and base == "palm-tree" and resumed and self.calibration is not None:
+                self.palm = PalmTreeProgram(self.config, self.calibration, int(run_text))
+                message += (
+                    f"; the palm tree is armed from arc {int(run_text) + 1} of "
+                    f"{self.palm.program.params.arcs}: engage, then SPEED + with ENGAGE held"
+                )
         elif action == "stop":
             accepted, message = self.maneuver.stop(now_s)
             if accepted and isinstance(self.autopilot, RouteAutopilot):
                 message += self.autopilot.stop_tuning(self.state.mode in AUTOMATIC_MODES)
+            program, ended = None, None
             if accepted and self.sweeping:
                 self.sweeping = False
+                program = "pedal_sweep"
                 message += "; the pedal sweep is disarmed"
-                self.sweep_ended_engaged = self.state.mode in AUTOMATIC_MODES
+                ended = AutopilotWish(
+                    ready=True, steer_tyre_rad=0.0, status={"pedal_sweep": {"phase": "ended"}}
+                )
+            if accepted and self.palm is not None:
+                program = "palm_tree"
+                message += "; the palm tree is disarmed"
+                ended = self.palm.held()
+                self.palm = None
+            if program is not None:
+                engaged = self.state.mode in AUTOMATIC_MODES
+                self.ended_wish = ended if engaged else None
                 if self.state.mode is Mode.SPEED_HOLD:
                     # However the command ended (done, Ctrl-C, gone), never left to the
                     # speed controller at whatever set speed the operator's + press
                     # locked, nor coasting: a stop on the controller, held at standstill
                     # until the operator takes over (OVERRIDE, a brake tap).
                     self.state = replace(self.state, set_speed_mps=0.0)
-                    self._note("pedal_sweep_ended", then="stop and hold in speed hold")
+                    self._note(program + "_ended", then="stop and hold in speed hold")
                     message += ": stopping and holding; OVERRIDE or a brake tap to take over"
         else:
             accepted, message = False, f"unknown maneuver action {action!r}: start or stop"
@@ -475,6 +508,8 @@ class ControlCore:
             document["maneuver"] = maneuver
         if self.sweeping and self.last_sweep is not None:
             document["pedal_sweep"] = self.last_sweep.as_status()
+        if self.palm is not None and self.palm.last is not None:
+            document["palm_tree"] = self.palm.last.as_status()
         pedal = self.commands.last_pedal
         if self.pedals:  # what the throttle/brake speed controller is doing, and why
             # No PC104 on this vehicle: the STOP frame nobody receives is not a command.
@@ -538,12 +573,19 @@ class ControlCore:
     def _wish(self, m: Measurements, inputs: ControlInputs, now_s: float) -> AutopilotWish:
         if self.sweeping and self.sweep is not None:
             return self._sweep_wish(m, now_s, self.sweep)
+        if self.palm is not None:
+            # Judged like the sweep, on the mode the cycle starts in; hold-to-move is a
+            # condition of arming the palm tree, so the button must be held.
+            in_control = self.state.mode is Mode.SPEED_HOLD and self._held
+            try:
+                return self.palm.wish(m.steer_wheel_rad, m.speed_mps, now_s, in_control)
+            except Exception as exc:  # as for any source: a broken one is not ready
+                return AutopilotWish(ready=False, reason=f"palm tree: {type(exc).__name__}: {exc}")
         engaged = self.state.mode in AUTOMATIC_MODES
-        self.sweep_ended_engaged = self.sweep_ended_engaged and engaged
-        if self.sweep_ended_engaged:
-            return AutopilotWish(
-                ready=True, steer_tyre_rad=0.0, status={"pedal_sweep": {"phase": "ended"}}
-            )
+        if not engaged:
+            self.ended_wish = None
+        if self.ended_wish is not None:
+            return self.ended_wish
         observation = Observation(
             now_s,
             m.speed_mps,

@@ -25,6 +25,7 @@ from typing import Any, Final
 from appliance.core.inputs import ControlInputs
 from appliance.core.observe import Measurements
 from appliance.core.output import CoreOutput
+from appliance.guidance.palm_tree_drive import DriveCommand
 from appliance.guidance.pedal_sweep import SweepCommand
 from appliance.localization.gnss_pose import GnssPose
 from drivers.actuators.messages import SteeringMode
@@ -72,6 +73,9 @@ class ManeuverSample:
     tune_run: int | None = None
     cross_track_m: float | None = None
     lookahead_m: float | None = None
+    # The palm tree driven by the daemon: its phase and arc (0-based) while armed.
+    palm_phase: str | None = None
+    palm_arc: int | None = None
 
     def as_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -94,6 +98,7 @@ def make_sample(
     faults: Iterable[str],
     sweep: SweepCommand | None = None,
     tuning: Mapping[str, Any] | None = None,
+    palm: DriveCommand | None = None,
 ) -> ManeuverSample:
     """One cycle's sample: raw readings where fresh, and what the core commanded."""
     steering = inputs.steering if "steering.pot" in fresh else None
@@ -134,6 +139,8 @@ def make_sample(
         tune_run=None if tuning is None else _integer(tuning.get("run")),
         cross_track_m=None if tuning is None else _number(tuning.get("cross_track_m")),
         lookahead_m=None if tuning is None else _number(tuning.get("lookahead_m")),
+        palm_phase=None if palm is None else str(palm.phase),
+        palm_arc=None if palm is None else palm.arc,
     )
 
 
@@ -202,11 +209,12 @@ class ManeuverTap:
         faults: Iterable[str],
         sweep: SweepCommand | None = None,
         tuning: Mapping[str, Any] | None = None,
+        palm: DriveCommand | None = None,
     ) -> None:
         if not self.active:
             return
         sample = make_sample(
-            self.next_seq, inputs, fresh, measured, output, stale, faults, sweep, tuning
+            self.next_seq, inputs, fresh, measured, output, stale, faults, sweep, tuning, palm
         )
         self.next_seq += 1
         self._ring.append(sample)

@@ -45,7 +45,10 @@ class AutopilotWish:
     what the source has to say in `dbw status` (plain data: a pose, a phase, a gap).
     ``pose`` (with ``pose_state``) and ``expected_pose`` are the source's estimate of the
     geometric centre and where its plan takes it, in the site frame; the PC104 link
-    carries them for a PC104 that closes the steering loop itself. ``pedals_pct``
+    carries them for a PC104 that closes the steering loop itself. ``speed_mps`` is a
+    source that sets the speed itself (the palm tree's walking pace and its stops): in
+    SPEED_HOLD it takes the place of the operator's set speed, under the same caps and
+    ramp (0 stops and holds). ``pedals_pct``
     (throttle, brake) is a source that drives the pedals itself (the pedal sweep,
     ``appliance.core.pedal_sweep``): honoured only in SPEED_HOLD on the pedals path, in
     place of the speed controller, through the same arbitration and pedal limits.
@@ -62,6 +65,7 @@ class AutopilotWish:
     pose: Pose2D | None = None
     pose_state: PoseState = PoseState.LOST
     expected_pose: Pose2D | None = None
+    speed_mps: float | None = None
     pedals_pct: tuple[float, float] | None = None
 
 

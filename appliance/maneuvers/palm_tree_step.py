@@ -10,7 +10,11 @@ every change of the wheel and every discontinuity, fits a circle to each and sol
 tyre angles through the four-wheel-steer model; its map replaces the constant steering
 ratio in the file.
 
-Like the other steps done by hand it only watches: engaging aborts it.
+By hand it only watches, like the other steps done by hand: engaging aborts it. With
+``--auto``, where the vehicle file allows it (``[palm_tree_drive]``, under hold-to-move),
+the daemon drives the same arcs at walking pace (``appliance.guidance.palm_tree_drive``)
+while the operator walks beside it holding ENGAGE; the step then watches the program's
+arcs go by and fits the same samples the same way.
 """
 
 from __future__ import annotations
@@ -23,6 +27,7 @@ import click
 import numpy as np
 
 from appliance.config.calibration import Calibration
+from appliance.config.palm_tree_models import palm_tree_drive_problems
 from appliance.maneuvers.merge import StepResult
 from appliance.maneuvers.report import FitReport, item_record
 from appliance.maneuvers.runner import Progress
@@ -38,11 +43,19 @@ HALF_TURN_RAD = math.pi
 # falls with the square of the arc's length); shorter ones are refused as imprecise.
 ARC_NEEDED_M = 8.0
 BETWEEN_EPOCHS = "between fixes"  # control cycles that repeat the last epoch: not samples
+AUTO_OPTION = click.option(
+    "--auto",
+    "x_auto",
+    is_flag=True,
+    help="The daemon drives the arcs at walking pace under hold-to-move, where the vehicle "
+    "file allows it ([palm_tree_drive] allowed = true); you walk beside it holding ENGAGE.",
+)
 
 
 class PalmTreeStep(HandStep):
     name = "palm-tree"
     summary = "Arcs at held wheel angles, full left to full right (Fig. 18): the tyre map."
+    extra_options = (AUTO_OPTION,)
     instructions: tuple[str, ...] = (
         "palm-tree: on open level ground, at walking pace (below 2 m/s):",
         "  turn the wheel to full LEFT lock at a standstill and hold it there;",
@@ -53,6 +66,14 @@ class PalmTreeStep(HandStep):
     )
 
     def reset(self) -> None:
+        self.auto = bool(self.context.options.get("x_auto"))
+        self.moves_vehicle = self.auto
+        if self.auto:  # a minute or so per arc, and the operator's pauses
+            self.default_timeout_s = 3600.0
+            self.instructions = self._auto_instructions()
+        # The program's phase and arc (0-based) in the last sample, while driven.
+        self._palm_phase: str | None = None
+        self._palm_arc = 0
         self.recorder = PalmTreeRecorder(bin_width_rad=HALF_TURN_RAD)
         self._last_epoch_s: float | None = None
         self._skipped: dict[str, int] = {}
@@ -80,8 +101,28 @@ class PalmTreeStep(HandStep):
             characteristic_speed_mps=config.geometry.characteristic_speed_mps,
         )
 
+    def _arcs(self) -> int:
+        """The program's arcs over the calibration's valid wheel range."""
+        drive = self.context.config.palm_tree_drive
+        return drive.params(self._converter().valid_wheel_range_rad).arcs
+
+    def _auto_instructions(self) -> tuple[str, ...]:
+        drive = self.context.config.palm_tree_drive
+        return (
+            "palm-tree --auto: the daemon drives an arc forward at each half turn of the wheel,",
+            f"  full left to full right, {drive.arc_m:g} m each at {drive.speed_mps:g} m/s, "
+            "turning the wheel only standing,",
+            f"  on open level ground (about {2.0 * drive.arc_m:.0f} m clear all round). Press "
+            "ENGAGE and keep",
+            "  it held, walking beside the vehicle, then SPEED +. Letting go of ENGAGE stops it;",
+            "  hold it again to go on. OVERRIDE, a brake tap or the wheel take it back. At the",
+            "  end the wheel is centred and the vehicle held standing: OVERRIDE to take over.",
+        )
+
     def preconditions(self, status: Mapping[str, Any]) -> list[str]:
         problems = super().preconditions(status)
+        if self.auto:
+            problems += self._auto_problems(status)
         gnss = status.get("gnss")
         if not isinstance(gnss, dict) or not gnss.get("fix") or gnss.get("yaw_deg") is None:
             problems.append(
@@ -92,17 +133,56 @@ class PalmTreeStep(HandStep):
             problems.append("no calibration file: run dbw calibrate pot-center and pot-map first")
         return problems
 
+    def _auto_problems(self, status: Mapping[str, Any]) -> list[str]:
+        config = self.context.config
+        problems = palm_tree_drive_problems(
+            config.palm_tree_drive, config.limits, config.engagement
+        )
+        if str(status.get("mode")) == "self_check":
+            problems.append("the daemon is in SELF_CHECK: the palm tree driven starts from READY")
+        speed = status.get("measured_speed_mps")
+        if not isinstance(speed, int | float):
+            problems.append("no measured speed: is the GNSS/INS receiver fixed?")
+        elif abs(speed) > STILL_MPS:
+            problems.append(f"the vehicle is moving ({abs(speed):.2f} m/s): stop first")
+        return problems
+
+    def update(self, sample: Mapping[str, Any]) -> str | None:
+        """Driven, the run is engaged by design: only the program's absence ends it."""
+        return self.take(sample) if self.auto else super().update(sample)
+
+    def start_step(self) -> str:
+        """Driven: "palm-tree@N" arms the program from arc N, the first one the samples
+        so far did not finish (the daemon's program counts finished arcs in each)."""
+        if not self.auto:
+            return self.name
+        return f"{self.name}@{min(self._palm_arc, self._arcs() - 1)}"
+
     def _skip(self, reason: str) -> None:
         self._skipped[reason] = self._skipped.get(reason, 0) + 1
 
     def take(self, sample: Mapping[str, Any]) -> str | None:
+        self._take_epoch(sample)
+        if not self.auto:
+            return None
+        phase = sample.get("palm_phase")
+        arc = sample.get("palm_arc")
+        if phase is None:
+            return "the daemon is not driving the palm tree (it restarted?): resume the run"
+        self._palm_phase = str(phase)
+        self._palm_arc = arc if isinstance(arc, int) else self._palm_arc
+        speed = sample_number(sample, "speed_mps")
+        self._speed_mps = abs(speed) if speed is not None else self._speed_mps
+        return None
+
+    def _take_epoch(self, sample: Mapping[str, Any]) -> None:
         epoch_s = sample_number(sample, "gnss_time_s")
         if epoch_s is None:
             self._skip("no fix")
             return None
         if self._last_epoch_s is not None and epoch_s <= self._last_epoch_s:
             self._skip(BETWEEN_EPOCHS)
-            return None
+            return
         values = [
             sample_number(sample, key)
             for key in ("east_m", "north_m", "yaw_rad", "gnss_speed_mps", "sigma_m")
@@ -110,17 +190,16 @@ class PalmTreeStep(HandStep):
         pot = sample_number(sample, "pot_counts")
         if pot is None or any(v is None for v in values):
             self._skip("no reading")
-            return None
+            return
         wheel = self._converter().wheel_rad_from_counts(pot)
         if wheel is None:
             self._skip("pot outside its valid range")
-            return None
+            return
         east, north, yaw, speed, sigma = (float(v) for v in values if v is not None)
         self.recorder.update(epoch_s, east, north, yaw, speed, wheel, sigma)
         self._last_epoch_s = epoch_s
         self._speed_mps = abs(speed)
         self._epochs += 1
-        return None
 
     def _bins(self) -> list[float]:
         """Half-turn bins from full left (positive) to full right, as the arcs are driven."""
@@ -134,15 +213,21 @@ class PalmTreeStep(HandStep):
         driven = [min(ARC_NEEDED_M, coverage.get(b, 0.0)) for b in bins]
         fraction = sum(driven) / (ARC_NEEDED_M * len(bins))
         grid = "".join("#" if d >= ARC_NEEDED_M else ("+" if d > 0.0 else ".") for d in driven)
+        program = ""
+        if self.auto:
+            program = f"; driving arc {self._palm_arc + 1}, {self._palm_phase or 'armed'}"
         return Progress(
             min(1.0, fraction),
             bar(fraction),
             f"arcs left to right [{grid}] ({sum(d >= ARC_NEEDED_M for d in driven)}/"
-            f"{len(bins)} half turns, {ARC_NEEDED_M:.0f} m each)",
+            f"{len(bins)} half turns, {ARC_NEEDED_M:.0f} m each){program}",
         )
 
     def complete(self) -> bool:
-        """Every half turn driven, and the vehicle stopped (not cut off mid-arc)."""
+        """Every half turn driven, and the vehicle stopped (not cut off mid-arc); driven,
+        the program done (it stops standing, the wheel centred)."""
+        if self.auto:
+            return self._palm_phase == "done" and self._speed_mps < STILL_MPS
         coverage = self.recorder.coverage_m()
         covered = all(coverage.get(b, 0.0) >= ARC_NEEDED_M for b in self._bins())
         return covered and self._speed_mps < STILL_MPS

@@ -118,7 +118,7 @@ def test_stopping_the_maneuver_mid_run_stops_and_holds_and_a_restart_disarms() -
     vehicle.press(Buttons.MANUAL_OVERRIDE)
     vehicle.step(core)
     vehicle.step(core)
-    assert core.state.mode is Mode.READY and not core.sweep_ended_engaged
+    assert core.state.mode is Mode.READY and core.ended_wish is None
     core, vehicle = bench()
     armed(core, vehicle)
     core.reset()  # the supervisor restarted the control service
@@ -156,7 +156,7 @@ def test_a_resumed_sweep_goes_on_from_the_run_it_names() -> None:
     for step, why in (
         (f"pedals@{runs}", f"run 0..{runs - 1}"),
         ("pedals@x", "not 'x'"),
-        ("pot-map@1", "only the pedal sweep and the look-ahead runs resume"),
+        ("pot-map@1", "the palm tree driven by the daemon resume, not"),
     ):
         accepted, message = core.maneuver_request("start", step, vehicle.now_s)
         assert not accepted and why in message, message
