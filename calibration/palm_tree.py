@@ -113,6 +113,11 @@ class PalmTreeParams:
             raise ValueError(f"jump_window must be odd and at least 3 (got {self.jump_window})")
 
 
+# Wheel-angle magnitudes closer than this are one for the map's coefficients (the paper's
+# arcs are half a turn apart).
+MAGNITUDE_GAP_RAD = 0.5
+
+
 @dataclass(frozen=True)
 class Arc:
     """One held wheel angle's circle and the tyre angles it gives (the per-arc table)."""
@@ -323,6 +328,17 @@ def _map_and_verdict(arcs: list[Arc], p: PalmTreeParams) -> tuple[TyreMapFit | N
     if len(arcs) <= len(p.map_powers) or not np.any(wheel != 0.0):
         reasons.append(f"{len(arcs)} arcs cannot fit the powers {p.map_powers} with a residual")
         return None, reasons
+    pinned = _distinct_magnitudes(wheel, p.hold_tolerance_rad)
+    if pinned < len(p.map_powers):
+        # An odd map: an arc and its mirror image pin the same coefficient, and the
+        # straight-ahead arc none; fewer magnitudes than powers leave the map free to
+        # swing between them (5 arcs at 0, ±π, ±2.3π fit a ratio of 4.6 for 18).
+        reasons.append(
+            f"the arcs' wheel angles pin {pinned} of the map's {len(p.map_powers)} "
+            f"coefficients (an arc and its mirror count once, straight ahead none): drive "
+            "at more wheel angles"
+        )
+        return None, reasons
     fit = fit_tyre_map(
         wheel,
         [a.front_rad for a in arcs],
@@ -337,3 +353,12 @@ def _map_and_verdict(arcs: list[Arc], p: PalmTreeParams) -> tuple[TyreMapFit | N
             f"{p.max_map_residual_deg} deg)"
         )
     return fit, reasons
+
+
+def _distinct_magnitudes(wheel_rad: np.ndarray, tolerance_rad: float) -> int:
+    """How many distinct wheel-angle magnitudes off straight ahead the arcs were driven at
+    (closer than ``MAGNITUDE_GAP_RAD`` is one: it barely pins a second coefficient)."""
+    magnitudes = np.sort(np.abs(wheel_rad[np.abs(wheel_rad) > tolerance_rad]))
+    if magnitudes.size == 0:
+        return 0
+    return 1 + int(np.count_nonzero(np.diff(magnitudes) > MAGNITUDE_GAP_RAD))

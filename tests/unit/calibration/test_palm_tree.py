@@ -59,6 +59,16 @@ def test_the_map_is_within_0_3_deg_of_the_linkage_from_lock_to_lock(recording: R
     assert fit.tyre_map.residual_max_deg < PARAMS.max_map_residual_deg
 
 
+def test_arcs_at_too_few_wheel_magnitudes_are_refused_not_fitted() -> None:
+    """Five arcs, but at 0, ±π and ±2.3π: an odd map of three powers has only two
+    magnitudes to go by, and would swing freely between them."""
+    wheels = (-2.3 * math.pi, -math.pi, 0.0, math.pi, 2.3 * math.pi)
+    fit = fit_palm_tree(palm_tree(wheels_rad=wheels).samples(), PARAMS)
+    assert len(fit.arcs) >= 5  # forward and back at each (straight ahead: no circle)
+    assert not fit.accepted and fit.tyre_map is None
+    assert any("pin 2 of the map's 3 coefficients" in r for r in fit.reasons), fit.reasons
+
+
 def test_each_arc_gives_both_tyre_angles_within_its_sigmas(recording: Recorder) -> None:
     fit = fit_palm_tree(recording.samples(), PARAMS)
     front_miss, rear_miss = [], []

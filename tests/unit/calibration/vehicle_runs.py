@@ -146,10 +146,11 @@ def palm_tree(
     speed_mps: float = 1.0,
     metres: float = 12.0,
     max_turn_rad: float = math.pi,
+    wheels_rad: tuple[float, ...] = HALF_TURNS_RAD,
 ) -> Recorder:
     """Full left to full right at half turns: forward an arc, reverse back, half a turn."""
     driver = Driver(errors, seed)
-    for wheel in HALF_TURNS_RAD:
+    for wheel in wheels_rad:
         driver.front_rad = float(true_tyre_rad(wheel))
         driver.hold(3.0)
         start = driver.state.odometer_m
