@@ -45,6 +45,9 @@ def render_status(doc: dict[str, Any]) -> str:
         if throttle is not None and brake is not None:
             line += f", throttle {throttle:.0f} %, brake {brake:.0f} %"
         lines.append(line)
+    palm = as_dict(doc.get("palm_tree"))
+    if palm:  # `dbw calibrate palm-tree --auto` has armed the daemon's arcs
+        lines.append(_palm_tree_line(palm))
     tuning = as_dict(as_dict(doc.get("autopilot")).get("tuning"))
     if tuning:  # `dbw calibrate lookahead` has armed the route source's runs
         lines.append(_tuning_line(tuning))
@@ -437,6 +440,22 @@ def clean_text(value: object, limit: int = 160) -> str:
             value = "?"
     text = "".join(ch if ch.isprintable() else "?" for ch in value[: limit + 1])
     return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def _palm_tree_line(palm: dict[str, Any]) -> str:
+    phase, arc, arcs = palm.get("phase"), palm.get("arc"), palm.get("arcs")
+    line = f"palm tree: {clean_text(phase) if isinstance(phase, str) else '?'}"
+    if isinstance(arc, int) and isinstance(arcs, int):
+        line += f", arc {arc}/{arcs}"
+    wheel, driven = _finite(palm.get("wheel_target_rad")), _finite(palm.get("driven_m"))
+    if wheel is not None:
+        line += f", wheel {wheel:+.2f} rad"
+    if driven is not None:
+        line += f", {driven:.1f} m driven"
+    stuck = palm.get("stuck")
+    if isinstance(stuck, str) and stuck:
+        line += f" (STUCK: {clean_text(stuck)})"
+    return line
 
 
 def _tuning_line(tuning: dict[str, Any]) -> str:

@@ -4,10 +4,9 @@ The simulated Husky's linkage turns the tyre 6 % further than the constant ratio
 lock and counter-steers with k = 0.6 (the vehicle file says 0.63); neither the command nor
 the fit is told. The vehicle file allows the program under hold-to-move; the operator
 holds ENGAGE (the bench's hold), presses SPEED +, lets go mid-arc (the vehicle stops, the
-program pauses) and holds it again (the rest of the arc, then the others). So the test
-stays short, the calibration's pot reads a valid range of ±2.3 turns of half a turn (five
-arcs, the fit's least); the full travel's figures are `benchmarks/bench_calibration.py
---auto`. The map merged is checked against the simulated linkage over that range.
+program pauses) and holds it again (the rest of the arc, then the others): seven arcs,
+full left to full right, at 2 m/s. The map merged is checked against the simulated
+linkage over the wheel's travel, and k against the simulator's.
 """
 
 from __future__ import annotations
@@ -29,6 +28,7 @@ from appliance.modes import Mode
 from drivers.actuators.steering_model import PotMapping
 from tests.runtime.test_calibrate_steering import (
     LINKAGE,
+    SERVO,
     TRUE_CENTRE_COUNTS,
     TRUE_K,
     calibration_config,
@@ -39,25 +39,24 @@ from tests.runtime.test_daemon_dock import running, until
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(240.0)]
 
-VALID_WHEEL_RAD = 2.3 * math.pi
 TRUTH = PotMapping(centre_counts=TRUE_CENTRE_COUNTS)
 
 
 def palm_config(tmp_path: Path) -> tuple[VehicleConfig, Path, Path]:
     """The vehicle file allowing the program (written out: the command reads the same one
-    the daemon runs) and a calibration file with the pot map and a narrowed valid range."""
+    the daemon runs) and a calibration file with the pot map (the palm tree's
+    prerequisite, measured by the steering test; here the simulator's own)."""
     calfile = tmp_path / "calibration.toml"
     base = calibration_config()
-    written = simulated_calibration(base.name, TRUTH)
-    steering = written.steering.model_copy(
-        update={
-            "pot_valid_min_counts": math.ceil(TRUTH.ideal_counts(-VALID_WHEEL_RAD)),
-            "pot_valid_max_counts": math.floor(TRUTH.ideal_counts(VALID_WHEEL_RAD)),
-        }
-    )
-    write_calibration(calfile, written.model_copy(update={"steering": steering}))
+    write_calibration(calfile, simulated_calibration(base.name, TRUTH))
     data = base.model_dump(mode="json")
-    data["engagement"] |= {"hold_to_move": True, "hold_to_move_stop_distance_m": 3.0}
+    # A brisker speed ramp than the Husky's own keeps the test short; the figures with
+    # the vehicle's are the benchmark's.
+    data["engagement"] |= {
+        "hold_to_move": True,
+        "hold_to_move_stop_distance_m": 3.0,
+        "max_accel_mps2": 1.0,
+    }
     data["palm_tree_drive"] = {"allowed": True, "speed_mps": 2.0, "arc_m": 8.0, "settle_s": 0.5}
     data["paths"]["calibration_file"] = str(calfile)
     vehicle_file = tmp_path / "husky-palm.toml"
@@ -100,18 +99,20 @@ async def test_the_daemon_drives_the_palm_tree_and_the_fit_finds_the_linkage(
         await until(lambda: daemon.core.palm is not None or command.done(), 15.0, daemon, "armed")
         assert not command.done(), command.result().output
         assert daemon.core.state.mode is Mode.READY  # armed, but nothing moves yet
-        await twins.act("hold", button="engage", seconds=12.0)
+        await twins.act("hold", button="engage", seconds=6.0)
         await until(lambda: daemon.core.state.mode is Mode.ENGAGED, 5.0, daemon, "ENGAGED")
         await twins.act("press", button="speed_plus")
         await until(lambda: daemon.core.state.mode is Mode.SPEED_HOLD, 5.0, daemon, "HOLD")
         await until(lambda: phase(daemon) is DrivePhase.DRIVE, 10.0, daemon, "the first arc")
-        # The 12 s hold ends mid-way: the vehicle stops and the program waits.
-        await until(lambda: phase(daemon) is DrivePhase.PAUSED, 15.0, daemon, "paused")
+        # The 6 s hold ends mid-arc: the vehicle stops and the program waits.
+        await until(lambda: phase(daemon) is DrivePhase.PAUSED, 10.0, daemon, "paused")
         assert daemon.core.state.mode is Mode.SPEED_HOLD
+        assert daemon.core.palm is not None and daemon.core.palm.program.arc == 0
+        assert 0.0 < daemon.core.palm.program.driven_m < 8.0
         await twins.act("hold", button="engage", seconds=150.0)
         result = await asyncio.wait_for(command, 170.0)
         assert result.exit_code == 0, result.output
-        assert "palm_tree merged" in result.output or "merged" in result.output, result.output
+        assert "palm_tree merged" in result.output, result.output
         # Ended standing with the wheel centred, held until the operator takes over.
         assert daemon.core.palm is None and daemon.core.state.mode is Mode.SPEED_HOLD
         await twins.act("press", button="manual_override")
@@ -121,8 +122,7 @@ async def test_the_daemon_drives_the_palm_tree_and_the_fit_finds_the_linkage(
     print(result.output)
     mapped = Calibration.from_file(read_calibration_file(calfile, config.name))
     assert mapped.wheel_to_tyre_coeffs is not None
-    low, high = mapped.valid_wheel_range_rad
-    wheel = np.linspace(low, high, 401)
+    wheel = np.linspace(-SERVO.wheel_limit_rad, SERVO.wheel_limit_rad, 401)
     errors = []
     for w in wheel:
         tyre = mapped.tyre_rad_from_counts(TRUTH.ideal_counts(float(w)))

@@ -306,6 +306,19 @@ def test_an_armed_pedal_sweep_shows_its_phase_run_and_pedals() -> None:
     assert "\x1b" not in line and "run" not in line
 
 
+def test_the_armed_palm_tree_shows_its_phase_arc_wheel_and_a_stuck_wheel() -> None:
+    palm = {"phase": "drive", "arc": 3, "arcs": 7, "wheel_target_rad": 3.1416, "driven_m": 4.25}
+    doc = {"mode": "speed_hold", "palm_tree": palm}
+    assert (
+        "palm tree: drive, arc 3/7, wheel +3.14 rad, 4.2 m driven"
+        in render_status(doc).splitlines()
+    )
+    stuck = {"phase": "steer", "stuck": "the wheel is at +1.00 rad\x1b[2J"}
+    line = line_with(render_status({"mode": "engaged", "palm_tree": stuck}), "palm tree")
+    assert "STUCK: the wheel is at +1.00 rad" in line and "\x1b" not in line
+    assert "arc" not in line.split("STUCK")[0]
+
+
 def test_armed_look_ahead_runs_and_the_servo_torque_flag_show() -> None:
     doc = {
         "mode": "speed_hold",

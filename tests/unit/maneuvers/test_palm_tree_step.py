@@ -137,3 +137,66 @@ def test_samples_without_epochs_are_refused_clearly() -> None:
     step = PalmTreeStep(CONTEXT)
     report = step.fit([{"seq": 0, "t_s": 0.0, "pot_counts": 2000}], raw_data=None)
     assert not report.accepted and "no GNSS/INS epoch" in report.lines[0]
+
+
+def auto_context(**drive: Any) -> StepContext:
+    """The vehicle file allowing the palm tree driven by the daemon, --auto given."""
+    data = CONFIG.model_dump(mode="json")
+    data["engagement"] |= {"hold_to_move": True, "hold_to_move_stop_distance_m": 3.0}
+    data["palm_tree_drive"] = {"allowed": True} | drive
+    config = type(CONFIG).model_validate(data)
+    return StepContext(config, simulated_calibration(config.name), {"x_auto": True})
+
+
+def driven(
+    samples: list[dict[str, Any]], phase: str = "drive", arc: int = 0
+) -> list[dict[str, Any]]:
+    return [dict(s, palm_phase=phase, palm_arc=arc, engaged=True) for s in samples]
+
+
+READY = {
+    "mode": "ready",
+    "vehicle": CONFIG.name,
+    "gnss": {"fix": True, "yaw_deg": 10.0},
+    "measured_speed_mps": 0.0,
+}
+
+
+def test_auto_is_refused_where_the_vehicle_file_does_not_allow_it() -> None:
+    step = PalmTreeStep(StepContext(CONFIG, CALIBRATION, {"x_auto": True}))
+    assert step.moves_vehicle and step.default_timeout_s == 3600.0
+    problems = " ".join(step.preconditions(READY))
+    assert "does not allow" in problems and "hold-to-move" in problems
+    allowed = PalmTreeStep(auto_context())
+    assert allowed.preconditions(READY) == []
+    moving = allowed.preconditions(dict(READY, measured_speed_mps=1.2))
+    assert any("moving (1.20 m/s)" in p for p in moving)
+    assert any("READY" in p for p in allowed.preconditions(dict(READY, mode="self_check")))
+
+
+def test_auto_follows_the_program_resumes_from_its_arc_and_completes_when_done(
+    samples: list[dict[str, Any]],
+) -> None:
+    step = PalmTreeStep(auto_context())
+    assert step.start_step() == "palm-tree@0"
+    assert "ENGAGE" in " ".join(step.instructions)
+    for sample in driven(samples[:200], arc=3):  # engaged: by design, not an abort
+        assert step.update(sample) is None
+    assert step.start_step() == "palm-tree@3" and not step.complete()
+    assert "driving arc 4, drive" in step.progress().detail
+    last = dict(samples[-1], palm_phase="done", palm_arc=7, speed_mps=0.0, gnss_speed_mps=0.0)
+    step.update(last)
+    assert step.complete()
+    assert step.start_step() == "palm-tree@6"  # never past the last arc
+    # A daemon that restarted has no program: the run ends, to be resumed.
+    ended = step.update(dict(samples[0], palm_phase=None))
+    assert ended is not None and "resume" in ended
+    by_hand = PalmTreeStep(CONTEXT)
+    assert by_hand.update(driven(samples[:1])[0]) is not None  # engaged ends a hand run
+
+
+def test_auto_fits_the_same_samples_as_by_hand(samples: list[dict[str, Any]]) -> None:
+    by_hand = PalmTreeStep(CONTEXT).fit(samples, raw_data=None)
+    auto = PalmTreeStep(auto_context()).fit(driven(samples), raw_data=None)
+    assert auto.accepted and by_hand.accepted
+    assert auto.figures == by_hand.figures
