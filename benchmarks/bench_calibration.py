@@ -12,14 +12,17 @@ while the technician drives an arc forward and backs it up at every half turn fr
 left to full right (Fig. 18), on a linkage whose departure from the constant ratio at the
 lock is drawn from 2..6 % (the tyre stays inside the Husky's 32° steering limit, where the
 simulated vehicle clamps it) and whose counter-steer ratio k is drawn from 0.55..0.70.
+Then the palm tree again, driven by the daemon (`dbw calibrate palm-tree --auto`), from the
+same pot map, on a copy of the file: the vehicle file allowing it under hold-to-move with
+its defaults (1 m/s, 10 m per arc), the simulated operator holding ENGAGE throughout.
 
     python -m benchmarks.bench_calibration [RUNS]     # 3 by default, about 6 min each
 
 Figures, printed and never asserted: the pot centre's error (tyre degrees; the issue's
 goal 0.1°), the pot map's largest error over its valid range (goal 0.2°), the palm tree's
 tyre-angle map's largest error from pot counts over the wheel's travel (goal 0.3°) and
-its k's relative error (goal 2 %), the time each maneuver took and the rests (pot map),
-stretches (pot centre) and arcs (palm tree) it used.
+its k's relative error (goal 2 %), by hand and driven, the time each maneuver took and
+the rests (pot map), stretches (pot centre) and arcs (palm tree) it used.
 """
 
 from __future__ import annotations
@@ -45,6 +48,7 @@ from appliance.cli.main import cli
 from appliance.config import VehicleConfig, load_config
 from appliance.config.calibration import Calibration
 from appliance.config.calibration_file import read_calibration_file
+from appliance.config.loader import to_toml
 from appliance.control_client import ControlClient
 from appliance.daemon import Daemon
 from appliance.logs import configure_logging
@@ -200,24 +204,20 @@ async def one_run(seed: int, workdir: Path) -> dict[str, float]:
         f"map error {map_error:.3f} deg ({map_s:.0f} s; {rests})",
         flush=True,
     )
+    auto_calfile = workdir / f"cal-auto-{seed}.toml"
+    shutil.copyfile(calfile, auto_calfile)  # the pot map's file, before the hand palm tree
     palm = await palm_tree_run(config, calfile, workdir / f"palm-{seed}.jsonl", common)
     palm_out, palm_s = palm
     mapped = Calibration.from_file(read_calibration_file(calfile, config.name))
-    errors = [
-        abs(np.degrees(tyre - truth.linkage.tyre_rad(float(w))))
-        for w in wheel
-        if (tyre := mapped.tyre_rad_from_counts(pot.ideal_counts(float(w)))) is not None
-    ]
-    tyre_error = float(max(errors))
-    k_line = next(line for line in palm_out.splitlines() if "counter-steer" in line)
-    k = float(k_line.split("k = ")[1].split()[0])
-    k_error_pct = 100.0 * abs(k - truth.k) / truth.k
-    arcs = next(line for line in palm_out.splitlines() if line.startswith("palm tree:"))
-    print(
-        f"  seed {seed}: tyre map error {tyre_error:.3f} deg, k {k:.4f} of {truth.k:.4f} "
-        f"({k_error_pct:.2f} %) ({palm_s:.0f} s; {arcs})",
-        flush=True,
+    tyre_error = tyre_map_error(mapped, pot, truth)
+    k_error_pct = palm_report(seed, "by hand", palm_out, palm_s, tyre_error, truth)
+    auto_out, auto_s = await palm_tree_auto_run(
+        config, auto_calfile, workdir / f"palm-auto-{seed}.jsonl", workdir
     )
+    auto_tyre_error = tyre_map_error(
+        Calibration.from_file(read_calibration_file(auto_calfile, config.name)), pot, truth
+    )
+    auto_k_pct = palm_report(seed, "driven", auto_out, auto_s, auto_tyre_error, truth)
     return {
         "centre": centre_error,
         "map": map_error,
@@ -226,7 +226,84 @@ async def one_run(seed: int, workdir: Path) -> dict[str, float]:
         "tyre": tyre_error,
         "k_pct": k_error_pct,
         "palm_s": palm_s,
+        "auto_tyre": auto_tyre_error,
+        "auto_k_pct": auto_k_pct,
+        "auto_s": auto_s,
     }
+
+
+def tyre_map_error(mapped: Calibration, pot: PotMapping, truth: Truth) -> float:
+    """The largest front-tyre error from pot counts through the file's maps, against the
+    simulated linkage, over the wheel's travel."""
+    wheel = np.linspace(-SERVO.wheel_limit_rad, SERVO.wheel_limit_rad, 4001)
+    return float(
+        max(
+            abs(np.degrees(tyre - truth.linkage.tyre_rad(float(w))))
+            for w in wheel
+            if (tyre := mapped.tyre_rad_from_counts(pot.ideal_counts(float(w)))) is not None
+        )
+    )
+
+
+def palm_report(
+    seed: int, how: str, output: str, seconds: float, tyre_error: float, truth: Truth
+) -> float:
+    """Print a palm tree's figures; its k's error (%)."""
+    k_line = next(line for line in output.splitlines() if "counter-steer" in line)
+    k = float(k_line.split("k = ")[1].split()[0])
+    k_error_pct = 100.0 * abs(k - truth.k) / truth.k
+    arcs = next(line for line in output.splitlines() if line.startswith("palm tree:"))
+    print(
+        f"  seed {seed}: palm tree {how}: tyre map error {tyre_error:.3f} deg, k {k:.4f} of "
+        f"{truth.k:.4f} ({k_error_pct:.2f} %) ({seconds:.0f} s; {arcs})",
+        flush=True,
+    )
+    return k_error_pct
+
+
+async def palm_tree_auto_run(
+    config: VehicleConfig, calfile: Path, samples: Path, workdir: Path
+) -> tuple[str, float]:
+    """The palm tree driven by the daemon, on a vehicle file allowing it (written out: the
+    command reads the file the daemon runs); the operator holds ENGAGE throughout."""
+    data = config.model_dump(mode="json")
+    data["engagement"] |= {"hold_to_move": True, "hold_to_move_stop_distance_m": 3.0}
+    data["palm_tree_drive"] = {"allowed": True}
+    data["paths"]["calibration_file"] = str(calfile)
+    vehicle_file = workdir / f"{samples.stem}.toml"
+    vehicle_file.write_text(to_toml(data) + "\n", encoding="utf-8")
+    async with running(load_config(vehicle_file)) as daemon:
+        assert daemon.io.sim_process is not None
+        bench = daemon.io.sim_process.bench_path
+        await until(lambda: daemon.core.state.mode is Mode.READY, 40.0, "READY")
+        await until(lambda: fixed(daemon), 20.0, "a fix")
+        args = [
+            "calibrate",
+            "palm-tree",
+            "--auto",
+            "--config",
+            str(vehicle_file),
+            "--calibration",
+            str(calfile),
+            "--yes",
+            "--timeout",
+            "900",
+            "--socket",
+            str(daemon.control_server.path),
+            "--samples",
+            str(samples),
+        ]
+        started = time.monotonic()
+        command = asyncio.ensure_future(asyncio.to_thread(CliRunner().invoke, cli, args))
+        await until(lambda: daemon.core.palm is not None or command.done(), 20.0, "armed")
+        async with ControlClient(bench) as client:
+            await client.call({"op": "hold", "button": "engage", "seconds": 600.0})
+            await until(lambda: daemon.core.state.mode is Mode.ENGAGED, 5.0, "engaged")
+            await client.call({"op": "press", "button": "speed_plus"})
+        result = await command
+        if result.exit_code != 0:
+            raise RuntimeError(result.output)
+        return result.output, time.monotonic() - started
 
 
 async def palm_tree_run(
@@ -276,9 +353,18 @@ async def main(runs: int) -> None:
         )
     )
     print(summarize("palm-tree k error", [r["k_pct"] for r in results], "%"))
+    print(
+        summarize(
+            "palm-tree driven: tyre map error (max over the wheel's travel)",
+            [r["auto_tyre"] for r in results],
+            "deg tyre",
+        )
+    )
+    print(summarize("palm-tree driven: k error", [r["auto_k_pct"] for r in results], "%"))
     print(summarize("pot-center maneuver", [r["centre_s"] for r in results], "s"))
     print(summarize("pot-map maneuver", [r["map_s"] for r in results], "s"))
     print(summarize("palm-tree maneuver", [r["palm_s"] for r in results], "s"))
+    print(summarize("palm-tree driven maneuver", [r["auto_s"] for r in results], "s"))
 
 
 if __name__ == "__main__":

@@ -101,11 +101,6 @@ class PalmTreeStep(HandStep):
             characteristic_speed_mps=config.geometry.characteristic_speed_mps,
         )
 
-    def _arcs(self) -> int:
-        """The program's arcs over the calibration's valid wheel range."""
-        drive = self.context.config.palm_tree_drive
-        return drive.params(self._converter().valid_wheel_range_rad).arcs
-
     def _auto_instructions(self) -> tuple[str, ...]:
         drive = self.context.config.palm_tree_drive
         return (
@@ -152,11 +147,18 @@ class PalmTreeStep(HandStep):
         return self.take(sample) if self.auto else super().update(sample)
 
     def start_step(self) -> str:
-        """Driven: "palm-tree@N" arms the program from arc N, the first one the samples
-        so far did not finish (the daemon's program counts finished arcs in each)."""
+        """Driven: "palm-tree@N" arms the program from its arc N, the first whose half
+        turn the samples so far have not covered (by hand or driven: a run begun by hand
+        can go on driven), the last when all are."""
         if not self.auto:
             return self.name
-        return f"{self.name}@{min(self._palm_arc, self._arcs() - 1)}"
+        drive = self.context.config.palm_tree_drive
+        targets = drive.params(self._converter().valid_wheel_range_rad).wheel_targets_rad
+        coverage = self.recorder.coverage_m()
+        for index, target in enumerate(targets):
+            if coverage.get(round(target / HALF_TURN_RAD) * HALF_TURN_RAD, 0.0) < ARC_NEEDED_M:
+                return f"{self.name}@{index}"
+        return f"{self.name}@{len(targets) - 1}"
 
     def _skip(self, reason: str) -> None:
         self._skipped[reason] = self._skipped.get(reason, 0) + 1

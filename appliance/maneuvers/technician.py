@@ -117,19 +117,21 @@ def palm_tree_schedule(
     brake_pct: float = 60.0,
     step_s: float = 0.05,
     back_up: bool = True,
+    to_rad: float | None = None,
 ) -> list[Pose]:
     """Stanley et al., Fig. 18: at a standstill the wheel to full left; an arc forward for
     ``arc_s`` (pressed to get going for ``launch_s``, then eased to a walking pace: the
     simulated Husky's 1.5 m/s with the defaults), braked to a stop, the same back in
     reverse, braked (``back_up``; without it the arcs go on forward, on a simulated
-    ground without end); half a turn right at the standstill; again, to full right. Then
-    the wheel back to the centre, hands off.
+    ground without end); half a turn right at the standstill; again, to full right (or
+    to ``to_rad``: a run broken off, to be resumed). Then the wheel back to the centre,
+    hands off.
 
     The stops between arcs are the technician's: the wheel is only turned with the vehicle
     standing, so every arc is driven at one held angle (the fit cuts arcs where it moves).
     """
     return _drives_at(
-        half_turns(lock_rad, -lock_rad, half_turn_rad),
+        half_turns(lock_rad, -lock_rad if to_rad is None else to_rad, half_turn_rad),
         drive_s=arc_s,
         back_up=back_up,
         pace=_Pace(launch_pct, launch_s, cruise_pct, brake_s, brake_pct),

@@ -7,7 +7,9 @@ encoder zeroed 1.3 rad away from straight): the daemon runs on a calibration tha
 as on a vehicle whose pot was remounted. A simulated technician drives and turns the
 wheel through the bench while the commands watch through the control socket. Neither the
 commands nor the fits are told the truth; it is checked at the end against the file
-written. Then, on the daemon restarted with that file, the palm tree: the simulated
+written. Then, on the daemon restarted with that file, the palm tree, by hand from full
+left to straight ahead, broken off there, and resumed driven by the daemon to full right
+(`--auto`, under hold-to-move, with a pause when the operator lets go): the simulated
 linkage turns the tyre 6 % further than the constant ratio at the lock and its
 counter-steer ratio is 0.6 where the vehicle file says 0.63; the map and k are checked
 against those; the turning tests confirm k, which is merged. Then the aborts: the
@@ -30,9 +32,10 @@ import pytest
 from click.testing import CliRunner, Result
 
 from appliance.cli.main import cli
-from appliance.config import VehicleConfig
+from appliance.config import VehicleConfig, load_config
 from appliance.config.calibration import Calibration
 from appliance.config.calibration_file import read_calibration_file, write_calibration
+from appliance.config.loader import to_toml
 from appliance.config.simulated_calibration import simulated_calibration
 from appliance.maneuvers import technician
 from appliance.modes import Mode
@@ -213,12 +216,18 @@ async def test_pot_centre_then_pot_map_recover_the_hidden_installation(tmp_path:
     assert '"accepted": true' in again.output
 
     # Then the palm tree, on the daemon restarted with the file just written (as the
-    # command says to do): one arc at every half turn from full left to full right.
-    async with running(on_calibration(config, calfile)) as (daemon, twins):
+    # command says to do), one arc at every half turn from full left to full right: by
+    # hand to straight ahead, where the run is broken off (its timeout), then resumed
+    # driven by the daemon (the vehicle file allows it, under hold-to-move) to full right.
+    palm_vehicle, vehicle_file = driven_palm_tree(config, calfile, tmp_path)
+    async with running(palm_vehicle) as (daemon, twins):
         socket = str(daemon.control_server.path)
         await until(lambda: daemon.core.state.mode is Mode.READY, 20.0, daemon, "READY")
         await until(lambda: fixed(daemon), 10.0, daemon, "a GNSS/INS fix")
         palm_samples = tmp_path / "palm-tree.jsonl"
+        schedule = technician.palm_tree_schedule(
+            SERVO.wheel_limit_rad, back_up=False, arc_s=7.0, brake_s=2.0, to_rad=0.0
+        )
         command = asyncio.create_task(
             dbw(
                 "calibrate",
@@ -229,16 +238,14 @@ async def test_pot_centre_then_pot_map_recover_the_hidden_installation(tmp_path:
                 "--samples",
                 str(palm_samples),
                 "--timeout",
-                "150",
+                f"{schedule[-1].t_s + 4.0:.0f}",
             )
         )
         await tapping(command, daemon)
-        schedule = technician.palm_tree_schedule(
-            SERVO.wheel_limit_rad, back_up=False, arc_s=7.0, brake_s=2.0
-        )
         result = await acted_out(command, twins.path, schedule)
-        print(result.output)
-        assert result.exit_code == 0, result.output
+        assert result.exit_code == 1 and "not complete within" in result.output, result.output
+        assert f"--resume {palm_samples}" in result.output
+        await palm_tree_driven(daemon, twins, vehicle_file, calfile, palm_samples)
 
         # The turning tests confirm k (the tyre map they need is in the file now; the
         # daemon only watches, so it need not be restarted for them).
@@ -284,6 +291,74 @@ async def test_pot_centre_then_pot_map_recover_the_hidden_installation(tmp_path:
     assert mapped.counter_steer_k_ratio is not None  # merged by k-ratio: both agreed
     print(f"[calibrate] k-ratio: k {mapped.counter_steer_k_ratio:.4f} merged")
     assert abs(mapped.counter_steer_k_ratio - TRUE_K) < 0.02 * TRUE_K
+
+
+def driven_palm_tree(
+    config: VehicleConfig, calfile: Path, tmp_path: Path
+) -> tuple[VehicleConfig, Path]:
+    """The vehicle on the calibration file, allowing the palm tree driven by the daemon
+    under hold-to-move at its walking pace (written out: the command reads the file the
+    daemon runs)."""
+    data = on_calibration(config, calfile).model_dump(mode="json")
+    data["engagement"] |= {"hold_to_move": True, "hold_to_move_stop_distance_m": 3.0}
+    data["palm_tree_drive"] = {"allowed": True, "arc_m": 8.0, "settle_s": 0.5}
+    vehicle_file = tmp_path / "husky-palm.toml"
+    vehicle_file.write_text(to_toml(data) + "\n", encoding="utf-8")
+    return load_config(vehicle_file), vehicle_file
+
+
+async def palm_tree_driven(
+    daemon: Any, twins: Any, vehicle_file: Path, calfile: Path, samples: Path
+) -> None:
+    """`dbw calibrate palm-tree --auto --resume`: the program armed from the first half
+    turn the hand left undriven; the operator holds ENGAGE and presses SPEED +, lets go
+    mid-arc (the vehicle stops, the program pauses) and holds it again to the end."""
+    command = asyncio.create_task(
+        dbw(
+            "calibrate",
+            "palm-tree",
+            "--auto",
+            "--config",
+            str(vehicle_file),
+            "--calibration",
+            str(calfile),
+            "--yes",
+            "--socket",
+            str(daemon.control_server.path),
+            "--resume",
+            str(samples),
+            "--timeout",
+            "150",
+        )
+    )
+    await until(lambda: daemon.core.palm is not None or command.done(), 15.0, daemon, "armed")
+    assert not command.done(), command.result().output
+    program = daemon.core.palm.program
+    assert program.arc == 4 and program.wheel_target_rad == pytest.approx(-math.pi)
+    assert daemon.core.state.mode is Mode.READY  # armed, but nothing moves yet
+    await twins.act("hold", button="engage", seconds=6.0)
+    await until(lambda: daemon.core.state.mode is Mode.ENGAGED, 5.0, daemon, "ENGAGED")
+    await twins.act("press", button="speed_plus")
+    await until(lambda: daemon.core.state.mode is Mode.SPEED_HOLD, 5.0, daemon, "HOLD")
+    await until(lambda: palm_phase(daemon) == "drive", 10.0, daemon, "driving")
+    # The 6 s hold ends mid-arc: the vehicle stops and the program waits.
+    await until(lambda: palm_phase(daemon) == "paused", 10.0, daemon, "paused")
+    assert program.arc == 4 and 0.0 < program.driven_m < 8.0
+    assert daemon.core.state.mode is Mode.SPEED_HOLD
+    await twins.act("hold", button="engage", seconds=120.0)
+    result = await asyncio.wait_for(command, 150.0)
+    print(result.output)
+    assert result.exit_code == 0, result.output
+    assert "palm_tree merged" in result.output
+    # Ended standing with the wheel centred, held until the operator takes over.
+    assert daemon.core.palm is None and daemon.core.state.mode is Mode.SPEED_HOLD
+    await twins.act("press", button="manual_override")
+    await until(lambda: daemon.core.state.mode is Mode.READY, 5.0, daemon, "handed back")
+
+
+def palm_phase(daemon: Any) -> str | None:
+    palm = daemon.core.palm
+    return None if palm is None or palm.last is None else str(palm.last.phase)
 
 
 def tyre_map_error_deg(calibration: Calibration, truth: PotMapping) -> float:

@@ -174,7 +174,7 @@ def test_auto_is_refused_where_the_vehicle_file_does_not_allow_it() -> None:
     assert any("READY" in p for p in allowed.preconditions(dict(READY, mode="self_check")))
 
 
-def test_auto_follows_the_program_resumes_from_its_arc_and_completes_when_done(
+def test_auto_follows_the_program_and_completes_when_it_is_done(
     samples: list[dict[str, Any]],
 ) -> None:
     step = PalmTreeStep(auto_context())
@@ -182,17 +182,33 @@ def test_auto_follows_the_program_resumes_from_its_arc_and_completes_when_done(
     assert "ENGAGE" in " ".join(step.instructions)
     for sample in driven(samples[:200], arc=3):  # engaged: by design, not an abort
         assert step.update(sample) is None
-    assert step.start_step() == "palm-tree@3" and not step.complete()
+    assert not step.complete()
     assert "driving arc 4, drive" in step.progress().detail
     last = dict(samples[-1], palm_phase="done", palm_arc=7, speed_mps=0.0, gnss_speed_mps=0.0)
     step.update(last)
     assert step.complete()
-    assert step.start_step() == "palm-tree@6"  # never past the last arc
     # A daemon that restarted has no program: the run ends, to be resumed.
     ended = step.update(dict(samples[0], palm_phase=None))
     assert ended is not None and "resume" in ended
     by_hand = PalmTreeStep(CONTEXT)
     assert by_hand.update(driven(samples[:1])[0]) is not None  # engaged ends a hand run
+
+
+def test_auto_resumes_from_the_first_half_turn_not_yet_covered_by_hand_or_driven() -> None:
+    """The program drives full left (+) to full right; arcs already in the samples, by
+    hand or driven, are not driven again."""
+    step = PalmTreeStep(auto_context())
+    for sample in as_tap_samples(palm_tree(wheels_rad=(3 * math.pi, 2 * math.pi)).rows):
+        step.update(sample)  # by hand: the program's absence is said, the arcs kept
+    assert step.start_step() == "palm-tree@2"
+    right = PalmTreeStep(auto_context())
+    for sample in as_tap_samples(palm_tree(wheels_rad=(-3 * math.pi,)).rows):
+        right.update(sample)
+    assert right.start_step() == "palm-tree@0"
+    everything = PalmTreeStep(auto_context())
+    for sample in tap_samples():
+        everything.update(sample)
+    assert everything.start_step() == "palm-tree@6"  # the last: never past the end
 
 
 def test_auto_fits_the_same_samples_as_by_hand(samples: list[dict[str, Any]]) -> None:

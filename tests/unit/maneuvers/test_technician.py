@@ -70,3 +70,8 @@ def test_the_palm_tree_turns_the_wheel_only_standing_and_backs_up_every_arc() ->
     assert poses[-1].wheel_rad is None and not poses[-1].reverse
     ahead_only = palm_tree_schedule(LOCK_RAD, back_up=False)
     assert not any(p.reverse for p in ahead_only)
+    # Broken off at the centre: full left to straight ahead, then hands off.
+    left_half = palm_tree_schedule(LOCK_RAD, to_rad=0.0)
+    held = sorted({p.wheel_rad for p in left_half if p.throttle_pct > 0.0})
+    assert held == pytest.approx(sorted(LOCK_RAD - k * math.pi for k in range(4)), abs=0.2)
+    assert left_half[-1].wheel_rad is None
