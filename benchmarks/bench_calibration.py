@@ -295,7 +295,7 @@ async def palm_tree_auto_run(
         ]
         started = time.monotonic()
         command = asyncio.ensure_future(asyncio.to_thread(CliRunner().invoke, cli, args))
-        await until(lambda: daemon.core.palm is not None or command.done(), 20.0, "armed")
+        await until(lambda: daemon.core.programs.palm is not None or command.done(), 20.0, "armed")
         async with ControlClient(bench) as client:
             await client.call({"op": "hold", "button": "engage", "seconds": 600.0})
             await until(lambda: daemon.core.state.mode is Mode.ENGAGED, 5.0, "engaged")

@@ -29,7 +29,6 @@ from typing import Any
 from appliance.config import parts
 from appliance.config.calibration import Calibration
 from appliance.config.models import VehicleConfig
-from appliance.config.pedal_models import sweep_limit_problems
 from appliance.core.autopilot import (
     AutopilotSource,
     AutopilotWish,
@@ -49,12 +48,11 @@ from appliance.core.observe import (
     pedal_path_problems,
 )
 from appliance.core.output import CoreOutput, Note
-from appliance.core.palm_tree_program import PalmTreeProgram, palm_tree_refusal
 from appliance.core.panel import PanelDecoder, PanelEvents
+from appliance.core.programs import DrivenPrograms
 from appliance.core.report import core_status
 from appliance.core.route_tuning import tuning_refusal
 from appliance.core.torque_watch import TorqueWatch
-from appliance.guidance.pedal_sweep import PedalSweep, SweepCommand
 from appliance.modes import (
     AUTOMATIC_MODES,
     Action,
@@ -153,9 +151,9 @@ class ControlCore:
         # The calibration maneuvers' tap: kept across a core restart (it only reads; the
         # samples show the mode the core restarted in, and a fault on the way ends a run).
         self.maneuver = ManeuverTap()
-        # The pedal sweep (`dbw calibrate pedals`): the one maneuver that drives, armed by
-        # its maneuver request, its wish judged like any source's.
-        self.sweep = PedalSweep(parts.pedal_sweep_params(config)) if self.pedals else None
+        # The maneuvers the daemon drives (the pedal sweep, the palm tree), armed by their
+        # maneuver requests, their wishes judged like any source's.
+        self.programs = DrivenPrograms(config, calibration)
         # The servo's load against the look-ahead tuning's (Fig. 21), where it has one.
         guidance = None if calibration is None else calibration.guidance
         baseline = None if guidance is None else guidance.servo_torque
@@ -194,15 +192,7 @@ class ControlCore:
         # A restart disarms the sweep and the look-ahead runs: the client sees it and ends.
         if isinstance(self.autopilot, RouteAutopilot):
             self.autopilot.stop_tuning(engaged=False)
-        self.sweeping = False
-        self.last_sweep: SweepCommand | None = None
-        # The palm tree driven by the daemon (`dbw calibrate palm-tree --auto`), while armed.
-        self.palm: PalmTreeProgram | None = None
-        # A program (the sweep, the palm tree) ended under automatic control: its last
-        # wheel, the controller stopping and holding, until the operator takes over (not
-        # the configured source, which may refuse where the program left the vehicle and
-        # fault a vehicle at rest).
-        self.ended_wish: AutopilotWish | None = None
+        self.programs.reset()
         if self.torque_watch is not None:
             self.torque_watch.reset()
         self._torque_retune: bool | None = None
@@ -276,10 +266,9 @@ class ControlCore:
         if self.torque_watch is not None:
             self._watch_torque(output, m, now_s, self.torque_watch)
         if self.maneuver.active:
-            sweep = self.last_sweep if self.sweeping else None
+            sweep, palm = self.programs.tapped()
             tuning = wish.status.get("tuning") if self.maneuver.step == "lookahead" else None
             tuning = tuning if isinstance(tuning, Mapping) else None
-            palm = None if self.palm is None else self.palm.last
             self.maneuver.update(
                 inputs, fresh, m, output, stale, self.faults.active_faults, sweep, tuning, palm
             )
@@ -378,17 +367,14 @@ class ControlCore:
         # "pedals@N": the sweep resumed from its run N (the step's name as the tap knows it
         # before the @; the whole text is what the recorder keeps, so replay resumes too).
         base, resumed, run_text = step.partition("@")
+        programs = self.programs
         if action == "start":
             refusal = None
-            if base == "pedals":
-                refusal = self._sweep_refusal(run_text)
+            if programs.drives(base, bool(resumed)):
+                speed = None if self._measured is None else self._measured.speed_mps
+                refusal = programs.refusal(base, bool(resumed), run_text, self.state.mode, speed)
             elif base == "lookahead":
                 refusal = tuning_refusal(self.config, self.autopilot, self.state.mode, run_text)
-            elif base == "palm-tree" and resumed:
-                speed = None if self._measured is None else self._measured.speed_mps
-                refusal = palm_tree_refusal(
-                    self.config, self.calibration, self.state.mode, speed, run_text
-                )
             elif resumed:
                 refusal = (
                     "only the pedal sweep, the look-ahead runs and the palm tree driven by "
@@ -404,38 +390,15 @@ class ControlCore:
                 if not armed:  # a run past the list's end
                     self.maneuver.stop(now_s)
                     accepted, message = False, said
-            if accepted and base == "pedals" and self.sweep is not None:
-                self.sweep.reset(int(run_text) if resumed else 0)
-                self.sweeping = True
-                message += "; the pedal sweep is armed"
-                message += f" from run {self.sweep.run + 1}" if resumed else ""
-                message += ": engage, then SPEED + to run it"
-            if accepted and base == "palm-tree" and resumed and self.calibration is not None:
-                self.palm = PalmTreeProgram(self.config, self.calibration, int(run_text))
-                message += (
-                    f"; the palm tree is armed from arc {int(run_text) + 1} of "
-                    f"{self.palm.program.params.arcs}: engage, then SPEED + with ENGAGE held"
-                )
+            if accepted and programs.drives(base, bool(resumed)):
+                message += programs.arm(base, run_text)
         elif action == "stop":
             accepted, message = self.maneuver.stop(now_s)
             if accepted and isinstance(self.autopilot, RouteAutopilot):
                 message += self.autopilot.stop_tuning(self.state.mode in AUTOMATIC_MODES)
-            program, ended = None, None
-            if accepted and self.sweeping:
-                self.sweeping = False
-                program = "pedal_sweep"
-                message += "; the pedal sweep is disarmed"
-                ended = AutopilotWish(
-                    ready=True, steer_tyre_rad=0.0, status={"pedal_sweep": {"phase": "ended"}}
-                )
-            if accepted and self.palm is not None:
-                program = "palm_tree"
-                message += "; the palm tree is disarmed"
-                ended = self.palm.held()
-                self.palm = None
+            program = programs.disarm(self.state.mode) if accepted else None
             if program is not None:
-                engaged = self.state.mode in AUTOMATIC_MODES
-                self.ended_wish = ended if engaged else None
+                message += f"; the {program.replace('_', ' ')} is disarmed"
                 if self.state.mode is Mode.SPEED_HOLD:
                     # However the command ended (done, Ctrl-C, gone), never left to the
                     # speed controller at whatever set speed the operator's + press
@@ -451,34 +414,6 @@ class ControlCore:
         for listener in self.request_listeners:
             listener("maneuver", f"{action}:{step}", now_s, accepted, message)
         return accepted, message
-
-    def _sweep_refusal(self, run_text: str = "") -> str | None:
-        """Why the pedal sweep may not be armed now (None: it may): only on the pedals
-        path, from READY (not engaged: the operator engages knowingly, after), standing;
-        a resumed one from one of its runs."""
-        if self.sweep is None:
-            return (
-                'the pedal sweep needs speed_path = "pedals" (here the PC104 closes the speed loop)'
-            )
-        problems = sweep_limit_problems(
-            self.config.pedal_sweep, self.config.limits, self.config.engagement
-        )
-        if problems:
-            return "the vehicle file's [pedal_sweep] does not fit its limits: " + "; ".join(
-                problems
-            )
-        runs = self.sweep.params.runs
-        if run_text and not (run_text.isdigit() and int(run_text) < runs):
-            return f"the pedal sweep resumes from a run 0..{runs - 1}, not {run_text!r}"
-        if self.state.mode is not Mode.READY:
-            return f"the pedal sweep starts from READY, not {self.state.mode}"
-        m = self._measured
-        speed = None if m is None else m.speed_mps
-        if speed is None or not math.isfinite(speed):
-            return "the pedal sweep needs a measured speed (is the GNSS/INS fixed?)"
-        if abs(speed) > self.sweep.params.stopped_mps * 2.0:
-            return f"the pedal sweep starts standing (moving at {abs(speed):.2f} m/s)"
-        return None
 
     def engage_blockers(self) -> tuple[str, ...]:
         """Why an engage press would be refused now (empty: it would be accepted), judged
@@ -506,10 +441,7 @@ class ControlCore:
         maneuver = self.maneuver.status()
         if maneuver is not None:
             document["maneuver"] = maneuver
-        if self.sweeping and self.last_sweep is not None:
-            document["pedal_sweep"] = self.last_sweep.as_status()
-        if self.palm is not None and self.palm.last is not None:
-            document["palm_tree"] = self.palm.last.as_status()
+        document.update(self.programs.status())
         pedal = self.commands.last_pedal
         if self.pedals:  # what the throttle/brake speed controller is doing, and why
             # No PC104 on this vehicle: the STOP frame nobody receives is not a command.
@@ -571,21 +503,10 @@ class ControlCore:
         self._notes.append(Note(event, fields))
 
     def _wish(self, m: Measurements, inputs: ControlInputs, now_s: float) -> AutopilotWish:
-        if self.sweeping and self.sweep is not None:
-            return self._sweep_wish(m, now_s, self.sweep)
-        if self.palm is not None:
-            # Judged like the sweep, on the mode the cycle starts in; hold-to-move is a
-            # condition of arming the palm tree, so the button must be held.
-            in_control = self.state.mode is Mode.SPEED_HOLD and self._held
-            try:
-                return self.palm.wish(m.steer_wheel_rad, m.speed_mps, now_s, in_control)
-            except Exception as exc:  # as for any source: a broken one is not ready
-                return AutopilotWish(ready=False, reason=f"palm tree: {type(exc).__name__}: {exc}")
+        programmed = self.programs.wish(m, now_s, self.state.mode, self._held)
+        if programmed is not None:
+            return programmed
         engaged = self.state.mode in AUTOMATIC_MODES
-        if not engaged:
-            self.ended_wish = None
-        if self.ended_wish is not None:
-            return self.ended_wish
         observation = Observation(
             now_s,
             m.speed_mps,
@@ -599,26 +520,6 @@ class ControlCore:
             return self.autopilot.update(observation)
         except Exception as exc:  # a broken source must not take the safety layer with it
             return AutopilotWish(ready=False, reason=f"{type(exc).__name__}: {exc}")
-
-    def _sweep_wish(self, m: Measurements, now_s: float, sweep: PedalSweep) -> AutopilotWish:
-        """While the sweep is armed it is the source: straight ahead, its pedals. It has
-        the pedals only in SPEED_HOLD with hold-to-move held (where asked for); judged on
-        the mode the cycle starts in, the cycle's own events (a brake tap) still take them
-        away before any command goes out."""
-        held = self._held or not self.config.engagement.hold_to_move
-        in_control = self.state.mode is Mode.SPEED_HOLD and held
-        try:
-            command = sweep.update(m.speed_mps, now_s, in_control)
-        except Exception as exc:  # as for any source: a broken one is not ready, no more
-            self.last_sweep = None
-            return AutopilotWish(ready=False, reason=f"pedal sweep: {type(exc).__name__}: {exc}")
-        self.last_sweep = command
-        return AutopilotWish(
-            ready=True,
-            steer_tyre_rad=0.0,
-            pedals_pct=(command.throttle_pct, command.brake_pct) if in_control else None,
-            status={"pedal_sweep": command.as_status()},
-        )
 
     def _engage_conditions(
         self,

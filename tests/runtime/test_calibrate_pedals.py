@@ -88,8 +88,8 @@ def driven_step(
 
 
 def phase(daemon: Any) -> SweepPhase | None:
-    sweep = daemon.core.last_sweep
-    return None if sweep is None or not daemon.core.sweeping else sweep.phase
+    sweep = daemon.core.programs.last_sweep
+    return None if sweep is None or not daemon.core.programs.sweeping else sweep.phase
 
 
 async def test_the_daemon_sweeps_the_pedals_and_the_fit_finds_the_hidden_ones(
@@ -101,7 +101,7 @@ async def test_the_daemon_sweeps_the_pedals_and_the_fit_finds_the_hidden_ones(
         socket = str(daemon.control_server.path)
         await until(lambda: fixed(daemon), 10.0, daemon, "a GNSS/INS fix")
         command = driven_step("pedals", vehicle_file, calfile, socket, samples)
-        await until(lambda: daemon.core.sweeping or command.done(), 15.0, daemon, "armed")
+        await until(lambda: daemon.core.programs.sweeping or command.done(), 15.0, daemon, "armed")
         assert not command.done(), command.result().output
         assert daemon.core.state.mode is Mode.READY  # armed, but nothing moves yet
         await twins.act("press", button="engage")
@@ -128,7 +128,7 @@ async def test_the_daemon_sweeps_the_pedals_and_the_fit_finds_the_hidden_ones(
         assert "pedals merged" in result.output
         # The sweep ended standing, held on the speed controller at 0 m/s, until the
         # operator takes over.
-        assert not daemon.core.sweeping
+        assert not daemon.core.programs.sweeping
         assert daemon.core.state.mode is Mode.SPEED_HOLD
         assert daemon.core.state.set_speed_mps == 0.0
         await twins.act("press", button="manual_override")

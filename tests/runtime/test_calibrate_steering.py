@@ -331,9 +331,11 @@ async def palm_tree_driven(
             "150",
         )
     )
-    await until(lambda: daemon.core.palm is not None or command.done(), 15.0, daemon, "armed")
+    await until(
+        lambda: daemon.core.programs.palm is not None or command.done(), 15.0, daemon, "armed"
+    )
     assert not command.done(), command.result().output
-    program = daemon.core.palm.program
+    program = daemon.core.programs.palm.program
     assert program.arc == 4 and program.wheel_target_rad == pytest.approx(-math.pi)
     assert daemon.core.state.mode is Mode.READY  # armed, but nothing moves yet
     await twins.act("hold", button="engage", seconds=6.0)
@@ -351,13 +353,13 @@ async def palm_tree_driven(
     assert result.exit_code == 0, result.output
     assert "palm_tree merged" in result.output
     # Ended standing with the wheel centred, held until the operator takes over.
-    assert daemon.core.palm is None and daemon.core.state.mode is Mode.SPEED_HOLD
+    assert daemon.core.programs.palm is None and daemon.core.state.mode is Mode.SPEED_HOLD
     await twins.act("press", button="manual_override")
     await until(lambda: daemon.core.state.mode is Mode.READY, 5.0, daemon, "handed back")
 
 
 def palm_phase(daemon: Any) -> str | None:
-    palm = daemon.core.palm
+    palm = daemon.core.programs.palm
     return None if palm is None or palm.last is None else str(palm.last.phase)
 
 

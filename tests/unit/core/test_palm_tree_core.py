@@ -35,7 +35,7 @@ PALM = palm_config()
 def armed(core: ControlCore, vehicle: PedalBench, arc: int = 0) -> str:
     accepted, message = core.maneuver_request("start", f"palm-tree@{arc}", vehicle.now_s)
     assert accepted, message
-    assert core.palm is not None and "armed" in message
+    assert core.programs.palm is not None and "armed" in message
     return message
 
 
@@ -47,7 +47,11 @@ def held_in_speed_hold(core: ControlCore, vehicle: PedalBench) -> None:
 
 
 def phase(core: ControlCore) -> DrivePhase | None:
-    return None if core.palm is None or core.palm.last is None else core.palm.last.phase
+    return (
+        None
+        if core.programs.palm is None or core.programs.palm.last is None
+        else core.programs.palm.last.phase
+    )
 
 
 def test_armed_only_where_allowed_under_hold_to_move_standing_in_ready() -> None:
@@ -56,7 +60,7 @@ def test_armed_only_where_allowed_under_hold_to_move_standing_in_ready() -> None
     assert not accepted and "does not allow" in message and "hold-to-move" in message
     assert core.maneuver.step is None  # nothing tapped either
     accepted, message = core.maneuver_request("start", "palm-tree", vehicle.now_s)
-    assert accepted and core.palm is None  # by hand: only tapped, whatever the file says
+    assert accepted and core.programs.palm is None  # by hand: only tapped, whatever the file says
     core, vehicle = bench(PALM)
     for step in ("palm-tree@7", "palm-tree@x", "palm-tree@"):
         accepted, message = core.maneuver_request("start", step, vehicle.now_s)
@@ -78,7 +82,7 @@ def test_every_arc_at_its_wheel_angle_driven_only_with_the_button_held() -> None
     core, vehicle = bench(PALM)
     message = armed(core, vehicle)
     assert "arc 1 of 7" in message
-    targets = core.palm.program.params.wheel_targets_rad if core.palm else ()
+    targets = core.programs.palm.program.params.wheel_targets_rad if core.programs.palm else ()
     assert targets[0] > 2.5 * math.pi and targets[-1] < -2.5 * math.pi
     for out in vehicle.run(core, 1.0):  # READY: armed, but nothing is the program's
         assert out.mode is Mode.READY and not out.throttle.enable
@@ -114,7 +118,7 @@ def test_letting_go_stops_and_holding_again_drives_the_rest_of_the_arc() -> None
     core, vehicle = bench(PALM)
     armed(core, vehicle)
     held_in_speed_hold(core, vehicle)
-    while core.palm is not None and core.palm.program.driven_m < 3.0:
+    while core.programs.palm is not None and core.programs.palm.program.driven_m < 3.0:
         vehicle.step(core)
         assert vehicle.now_s < 60.0
     vehicle.hold_button(Buttons.ENGAGE, False)
@@ -127,12 +131,12 @@ def test_letting_go_stops_and_holding_again_drives_the_rest_of_the_arc() -> None
     vehicle.run(core, 6.0)
     assert vehicle.speed_mps == 0.0
     start = vehicle.distance_m
-    driven = core.palm.program.driven_m if core.palm else math.nan
+    driven = core.programs.palm.program.driven_m if core.programs.palm else math.nan
     vehicle.hold_button(Buttons.ENGAGE, True)
     while phase(core) is not DrivePhase.STOP:
         vehicle.step(core)
         assert vehicle.now_s < 120.0
-    assert core.palm is not None and core.palm.program.arc == 0
+    assert core.programs.palm is not None and core.programs.palm.program.arc == 0
     assert vehicle.distance_m - start < 8.0 - driven + 0.2  # the rest, not a whole arc
 
 
@@ -146,7 +150,7 @@ def test_a_stop_request_stands_with_the_wheel_where_it_was_and_a_restart_disarms
     wheel = vehicle.wheel_rad
     accepted, message = core.maneuver_request("stop", "palm-tree", vehicle.now_s)
     assert accepted and "disarmed" in message and "stopping and holding" in message
-    assert core.palm is None and core.state.set_speed_mps == 0.0
+    assert core.programs.palm is None and core.state.set_speed_mps == 0.0
     outs = vehicle.run(core, 6.0)
     assert all(out.mode is Mode.SPEED_HOLD and out.speed_setpoint_mps == 0.0 for out in outs)
     throttles = [throttle_pct(out) for out in outs]
@@ -155,11 +159,11 @@ def test_a_stop_request_stands_with_the_wheel_where_it_was_and_a_restart_disarms
     assert vehicle.speed_mps == 0.0 and abs(vehicle.wheel_rad - wheel) < 0.06
     vehicle.press(Buttons.MANUAL_OVERRIDE)
     vehicle.run(core, 0.1)
-    assert core.state.mode is Mode.READY and core.ended_wish is None
+    assert core.state.mode is Mode.READY and core.programs.ended_wish is None
     core, vehicle = bench(PALM)
     armed(core, vehicle)
     core.reset()  # the supervisor restarted the control service
-    assert core.palm is None
+    assert core.programs.palm is None
     vehicle.run(core, 0.5)
     assert core.maneuver.samples_since(0, 10_000)["samples"][-1]["palm_phase"] is None
 
@@ -171,6 +175,6 @@ def test_the_calibration_aims_the_wheel_at_the_program_s_angle() -> None:
     armed(core, vehicle)
     vehicle.step(core)
     wish = core.last_wish
-    assert wish is not None and core.palm is not None
-    target = core.palm.program.wheel_target_rad
+    assert wish is not None and core.programs.palm is not None
+    target = core.programs.palm.program.wheel_target_rad
     assert math.isclose(SIM_CALIBRATION.wheel_rad_from_tyre(wish.steer_tyre_rad), target)

@@ -28,7 +28,7 @@ SWEEP = CONFIG.pedal_sweep
 def armed(core: ControlCore, vehicle: PedalBench) -> None:
     accepted, message = core.maneuver_request("start", "pedals", vehicle.now_s)
     assert accepted, message
-    assert core.sweeping and "armed" in message
+    assert core.programs.sweeping and "armed" in message
 
 
 def into_speed_hold(core: ControlCore, vehicle: PedalBench) -> None:
@@ -71,7 +71,10 @@ def test_the_sweep_drives_only_in_speed_hold_and_straight_ahead() -> None:
         assert not (throttle_pct(out) > 0.0 and brake_pct(out) > 0.0)
         throttles.append(throttle_pct(out))
     # Standing 1 s on the hold brake, then the first level, reached at the limiter's rate.
-    assert core.last_sweep is not None and core.last_sweep.phase is SweepPhase.THROTTLE
+    assert (
+        core.programs.last_sweep is not None
+        and core.programs.last_sweep.phase is SweepPhase.THROTTLE
+    )
     assert max(throttles) == SWEEP.throttle_levels_pct[0]
     assert vehicle.speed_mps > 0.3
     sample = core.maneuver.samples_since(0, 10_000)["samples"][-1]
@@ -84,19 +87,26 @@ def test_a_brake_tap_takes_the_pedals_within_the_cycle_and_the_run_starts_over()
     armed(core, vehicle)
     into_speed_hold(core, vehicle)
     vehicle.run(core, 3.0)
-    assert core.last_sweep is not None and core.last_sweep.phase is SweepPhase.THROTTLE
+    assert (
+        core.programs.last_sweep is not None
+        and core.programs.last_sweep.phase is SweepPhase.THROTTLE
+    )
     vehicle.brake_pedal(30.0)
     out = vehicle.step(core)
     assert out.mode is Mode.ENGAGED
     assert not out.throttle.enable  # in the very cycle the foot came down
     vehicle.brake_pedal(0.0)
     out = vehicle.step(core)
-    assert core.last_sweep is not None and core.last_sweep.phase is SweepPhase.PAUSED
+    assert (
+        core.programs.last_sweep is not None and core.programs.last_sweep.phase is SweepPhase.PAUSED
+    )
     vehicle.press(Buttons.SPEED_PLUS)
     vehicle.step(core)
     out = vehicle.step(core)
     assert out.mode is Mode.SPEED_HOLD
-    assert core.last_sweep.phase is SweepPhase.STOPPING and core.last_sweep.run == 0
+    assert (
+        core.programs.last_sweep.phase is SweepPhase.STOPPING and core.programs.last_sweep.run == 0
+    )
     assert throttle_pct(out) == 0.0 and brake_pct(out) > 0.0
 
 
@@ -118,11 +128,11 @@ def test_stopping_the_maneuver_mid_run_stops_and_holds_and_a_restart_disarms() -
     vehicle.press(Buttons.MANUAL_OVERRIDE)
     vehicle.step(core)
     vehicle.step(core)
-    assert core.state.mode is Mode.READY and core.ended_wish is None
+    assert core.state.mode is Mode.READY and core.programs.ended_wish is None
     core, vehicle = bench()
     armed(core, vehicle)
     core.reset()  # the supervisor restarted the control service
-    assert not core.sweeping
+    assert not core.programs.sweeping
     vehicle.run(core, 1.0)
     assert core.maneuver.active  # the tap goes on: the client sees samples with no sweep
     assert core.maneuver.samples_since(0, 10_000)["samples"][-1]["sweep_phase"] is None
@@ -142,29 +152,37 @@ def test_under_hold_to_move_the_sweep_has_the_pedals_only_while_held() -> None:
     vehicle.press(Buttons.SPEED_PLUS)
     vehicle.run(core, 3.0)
     assert core.state.mode is Mode.SPEED_HOLD
-    assert core.last_sweep is not None and core.last_sweep.phase is SweepPhase.THROTTLE
+    assert (
+        core.programs.last_sweep is not None
+        and core.programs.last_sweep.phase is SweepPhase.THROTTLE
+    )
     vehicle.hold_button(Buttons.ENGAGE, False)
     vehicle.step(core)
     out = vehicle.step(core)
-    assert core.last_sweep.phase is SweepPhase.PAUSED
+    assert core.programs.last_sweep.phase is SweepPhase.PAUSED
     assert throttle_pct(out) == 0.0 and brake_pct(out) > 0.0  # the controlled stop
 
 
 def test_a_resumed_sweep_goes_on_from_the_run_it_names() -> None:
     core, vehicle = bench()
-    runs = core.sweep.params.runs if core.sweep is not None else 0
+    runs = core.programs.sweep.params.runs if core.programs.sweep is not None else 0
     for step, why in (
         (f"pedals@{runs}", f"run 0..{runs - 1}"),
         ("pedals@x", "not 'x'"),
+        ("pedals@", "not ''"),
         ("pot-map@1", "the palm tree driven by the daemon resume, not"),
     ):
         accepted, message = core.maneuver_request("start", step, vehicle.now_s)
         assert not accepted and why in message, message
     accepted, message = core.maneuver_request("start", "pedals@2", vehicle.now_s)
     assert accepted and "from run 3" in message
-    assert core.maneuver.step == "pedals" and core.sweep is not None and core.sweep.run == 2
+    assert (
+        core.maneuver.step == "pedals"
+        and core.programs.sweep is not None
+        and core.programs.sweep.run == 2
+    )
     into_speed_hold(core, vehicle)
     vehicle.run(core, 1.5)
-    assert core.last_sweep is not None and core.last_sweep.run == 2
-    assert core.last_sweep.phase is SweepPhase.THROTTLE
-    assert core.last_sweep.throttle_pct == CONFIG.pedal_sweep.throttle_levels_pct[2 % 3]
+    assert core.programs.last_sweep is not None and core.programs.last_sweep.run == 2
+    assert core.programs.last_sweep.phase is SweepPhase.THROTTLE
+    assert core.programs.last_sweep.throttle_pct == CONFIG.pedal_sweep.throttle_levels_pct[2 % 3]
