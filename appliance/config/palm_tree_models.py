@@ -9,10 +9,10 @@ because the daemon runs the program and a recording's replay must run the same o
 from __future__ import annotations
 
 import math
-from typing import Protocol
 
 from pydantic import BaseModel, ConfigDict, Field
 
+from appliance.config.pedal_models import _Engagement, _Limits
 from appliance.guidance.palm_tree_drive import PalmTreeDriveParams, half_turn_targets
 
 HALF_TURN_RAD = math.pi
@@ -47,19 +47,6 @@ class PalmTreeDriveSettings(_Model):
             settle_s=self.settle_s,
             steer_timeout_s=self.steer_timeout_s,
         )
-
-
-class _Limits(Protocol):
-    @property
-    def max_speed_mps(self) -> float: ...
-
-
-class _Engagement(Protocol):
-    @property
-    def max_set_speed_mps(self) -> float: ...
-
-    @property
-    def hold_to_move(self) -> bool: ...
 
 
 def palm_tree_drive_problems(
