@@ -32,6 +32,10 @@ class PalmTreeDriveSettings(_Model):
     # Per half turn; the fit wants 8 m of arc at least (its curvature precision).
     arc_m: float = Field(10.0, ge=8.0, le=50.0)
     wheel_tolerance_rad: float = Field(0.05, gt=0.0, le=0.5)
+    # The wheel turned standing at a hand's pace (the steering-tracking rule's 3 deg and
+    # the servo's lag allow about 6 rad/s of wheel on the simulated Husky; a dry-steered
+    # linkage is spared the rest).
+    steer_rate_rad_per_s: float = Field(2.0, gt=0.0, le=10.0)
     settle_s: float = Field(1.0, ge=0.0, le=10.0)
     steer_timeout_s: float = Field(20.0, gt=1.0, le=120.0)
 
@@ -44,6 +48,7 @@ class PalmTreeDriveSettings(_Model):
             arc_m=self.arc_m,
             speed_mps=self.speed_mps,
             wheel_tolerance_rad=self.wheel_tolerance_rad,
+            steer_rate_rad_per_s=self.steer_rate_rad_per_s,
             settle_s=self.settle_s,
             steer_timeout_s=self.steer_timeout_s,
         )

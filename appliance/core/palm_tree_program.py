@@ -1,7 +1,8 @@
 """The palm tree driven by the daemon, on the core: armed by `dbw calibrate palm-tree --auto`.
 
 While armed, the program (``appliance.guidance.palm_tree_drive``) is the autopilot source:
-its wheel angle becomes a tyre angle through the calibration file's own maps (so the
+its wheel angle (where it aims the wheel now, on the way to the arc's) becomes a tyre
+angle through the calibration file's own maps (so the
 servo is aimed back at exactly that wheel angle), its speed target replaces the
 operator's set speed in SPEED_HOLD. It has the vehicle only in SPEED_HOLD with the engage
 button held (hold-to-move is a condition of arming it); anything else pauses it, and the
@@ -35,11 +36,17 @@ class PalmTreeProgram:
         self.last: DriveCommand | None = None
 
     def wish(
-        self, wheel_rad: float | None, speed_mps: float | None, now_s: float, in_control: bool
+        self,
+        wheel_rad: float | None,
+        speed_mps: float | None,
+        now_s: float,
+        in_control: bool,
+        steering: bool,
     ) -> AutopilotWish:
-        command = self.program.update(wheel_rad, speed_mps, now_s, in_control)
+        """``in_control``: the program has the vehicle; ``steering``: engaged at all."""
+        command = self.program.update(wheel_rad, speed_mps, now_s, in_control, steering)
         self.last = command
-        steer = self.calibration.tyre_rad_from_wheel(command.wheel_target_rad)
+        steer = self.calibration.tyre_rad_from_wheel(command.wheel_aim_rad)
         return AutopilotWish(
             ready=command.stuck is None,
             reason="" if command.stuck is None else f"palm tree: {command.stuck}",
@@ -53,7 +60,7 @@ class PalmTreeProgram:
         """After the program ends engaged: the wheel where the program left it, standing,
         until the operator takes over (turning it back is the operator's call)."""
         last = self.last
-        wheel = 0.0 if last is None else last.wheel_target_rad
+        wheel = 0.0 if last is None else last.wheel_aim_rad
         return AutopilotWish(
             ready=True,
             steer_tyre_rad=self.calibration.tyre_rad_from_wheel(wheel),

@@ -111,7 +111,8 @@ class DrivenPrograms:
             # Hold-to-move is a condition of arming the palm tree: the button must be held.
             in_control = mode is Mode.SPEED_HOLD and button_held
             try:
-                return self.palm.wish(m.steer_wheel_rad, m.speed_mps, now_s, in_control)
+                steering = mode in AUTOMATIC_MODES
+                return self.palm.wish(m.steer_wheel_rad, m.speed_mps, now_s, in_control, steering)
             except Exception as exc:  # as for any source: a broken one is not ready
                 return AutopilotWish(ready=False, reason=f"palm tree: {type(exc).__name__}: {exc}")
         if mode not in AUTOMATIC_MODES:

@@ -13,16 +13,21 @@ judge as any source's. It has the vehicle only in SPEED_HOLD with hold-to-move h
 otherwise it pauses, keeping how far the arc got, and when the operator hands back it
 stands, checks the wheel again, and drives the rest of the arc.
 
-An arc: the wheel turned to its target with the vehicle standing, held within
-``wheel_tolerance_rad`` for ``settle_s`` (``STEER``); the walking pace until the arc's
-length is driven (``DRIVE``, the distance from the measured speed); a stop, standing for
-``stopped_s`` (``STOP``). After the last arc the wheel goes back to the centre, standing
-(``CENTRE``), then ``DONE`` (standing, held by the speed controller). Forward only: the
-pedals path cannot reverse, so the arcs go on across the ground (a circle of the arcs'
-length at most around where it started) instead of backing over themselves as in the
-paper. Deny by default: an unknown speed or wheel angle stands still (``NO_READING``); a
-wheel that does not reach its target in ``steer_timeout_s`` is reported (``stuck``), and
-the source then refuses, which disengages.
+An arc: the wheel turned to its target with the vehicle standing, at a hand's pace
+(``steer_rate_rad_per_s``: a step of three turns at once is more than a servo follows
+within the steering-tracking rule's tolerance, and more than a dry-steered linkage should
+take), held within ``wheel_tolerance_rad`` for ``settle_s`` (``STEER``); the walking
+pace until the arc's length is driven (``DRIVE``, the distance from the measured speed);
+a stop, standing for ``stopped_s`` (``STOP``). After the last arc the wheel goes back to
+the centre, standing (``CENTRE``), then ``DONE`` (standing, held by the speed
+controller). Forward only: the pedals path cannot reverse, so the arcs go on across the
+ground (a circle of the arcs' length at most around where it started) instead of backing
+over themselves as in the paper. Deny by default: an unknown speed or wheel angle stands
+still (``NO_READING``); a wheel that does not reach its target within ``steer_timeout_s``
+of its turn is reported (``stuck``), and the source then refuses, which disengages. The
+wheel is only ever turned by the program while it has the vehicle: engaged without it,
+the wheel is held where it was when the operator engaged (or let go), so an engagement
+never swings it to a lock.
 """
 
 from __future__ import annotations
@@ -51,6 +56,7 @@ class PalmTreeDriveParams:
     arc_m: float
     speed_mps: float
     wheel_tolerance_rad: float = 0.05
+    steer_rate_rad_per_s: float = 2.0  # the wheel's, turned standing
     settle_s: float = 1.0
     steer_timeout_s: float = 20.0
     # A GNSS/INS speed reads a few cm/s on a vehicle held by its brake.
@@ -62,7 +68,13 @@ class PalmTreeDriveParams:
             raise ValueError("the palm tree needs at least one wheel angle")
         if not all(math.isfinite(w) for w in self.wheel_targets_rad):
             raise ValueError(f"wheel targets must be finite (got {self.wheel_targets_rad})")
-        for name in ("arc_m", "speed_mps", "wheel_tolerance_rad", "steer_timeout_s"):
+        for name in (
+            "arc_m",
+            "speed_mps",
+            "wheel_tolerance_rad",
+            "steer_rate_rad_per_s",
+            "steer_timeout_s",
+        ):
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0.0):
                 raise ValueError(f"{name} must be positive and finite (got {value})")
@@ -83,7 +95,8 @@ class DriveCommand:
     phase: DrivePhase
     arc: int  # 0-based; == arcs once every arc is driven
     arcs: int
-    wheel_target_rad: float
+    wheel_target_rad: float  # the arc's
+    wheel_aim_rad: float  # what the wheel is steered to now, on its way to the target
     speed_mps: float  # the speed target: 0 stands (the controller stops and holds)
     driven_m: float  # along the current arc
     stuck: str | None = None  # the wheel did not get to its target: the source refuses
@@ -94,6 +107,7 @@ class DriveCommand:
             "arc": min(self.arc + 1, self.arcs),
             "arcs": self.arcs,
             "wheel_target_rad": round(self.wheel_target_rad, 4),
+            "wheel_aim_rad": round(self.wheel_aim_rad, 4),
             "speed_mps": self.speed_mps,
             "driven_m": round(self.driven_m, 2),
             "stuck": self.stuck,
@@ -101,7 +115,7 @@ class DriveCommand:
 
 
 class PalmTreeDrive:
-    """The program (see the module): ``reset()``, ``update(wheel, speed, now, in_control)``."""
+    """The program (see the module): ``reset()``, then ``update()`` once per cycle."""
 
     def __init__(self, params: PalmTreeDriveParams) -> None:
         self.params = params
@@ -118,6 +132,8 @@ class PalmTreeDrive:
         self._since_s: float | None = None  # when the current phase began
         self._ok_since_s: float | None = None  # standing (and on target) since
         self._last_s: float | None = None
+        self._aim_rad: float | None = None  # None: not known yet (no wheel reading)
+        self._budget_s = self.params.steer_timeout_s  # for the phase's steering
 
     @property
     def done(self) -> bool:
@@ -137,35 +153,51 @@ class PalmTreeDrive:
         self._last_s = None
 
     def update(
-        self, wheel_rad: float | None, speed_mps: float | None, now_s: float, in_control: bool
+        self,
+        wheel_rad: float | None,
+        speed_mps: float | None,
+        now_s: float,
+        in_control: bool,
+        steering: bool = True,
     ) -> DriveCommand:
+        """One cycle: ``in_control`` when the program has the vehicle (speed hold, the
+        button held); ``steering`` when the steering is automatic at all (engaged)."""
         p = self.params
+        wheel_known = wheel_rad is not None and math.isfinite(wheel_rad)
         if not in_control:
             self.pause()
+            if wheel_known and (not steering or self._aim_rad is None):
+                self._aim_rad = wheel_rad  # the operator's wheel, held where they left it
             return self._command(DrivePhase.PAUSED, 0.0)
         if (
             wheel_rad is None
             or speed_mps is None
-            or not math.isfinite(wheel_rad)
+            or not wheel_known
             or not math.isfinite(speed_mps)
         ):
             self.pause()
             return self._command(DrivePhase.NO_READING, 0.0)
         speed = abs(speed_mps)
+        aim = wheel_rad if self._aim_rad is None else self._aim_rad
         if self._since_s is None:
             self._since_s = now_s
+            travel_rad = abs(self.wheel_target_rad - aim)
+            self._budget_s = p.steer_timeout_s + travel_rad / p.steer_rate_rad_per_s
         step_s = 0.0 if self._last_s is None else min(MAX_STEP_S, max(0.0, now_s - self._last_s))
         self._last_s = now_s
         standing = speed < p.stopped_mps
         stuck = None
         if self.phase in (DrivePhase.STEER, DrivePhase.CENTRE):
+            if standing:  # turned only standing: every arc at one held angle
+                reach = p.steer_rate_rad_per_s * step_s
+                aim += max(-reach, min(reach, self.wheel_target_rad - aim))
             on_target = abs(wheel_rad - self.wheel_target_rad) <= p.wheel_tolerance_rad
             if self._held(standing and on_target, now_s, p.settle_s):
                 self._enter(DrivePhase.DRIVE if self.phase is DrivePhase.STEER else DrivePhase.DONE)
-            elif now_s - self._since_s > p.steer_timeout_s:
+            elif now_s - self._since_s > self._budget_s:
                 stuck = (
                     f"the wheel is at {wheel_rad:+.2f} rad, not {self.wheel_target_rad:+.2f} "
-                    f"(± {p.wheel_tolerance_rad:.2f}) after {p.steer_timeout_s:.0f} s"
+                    f"(± {p.wheel_tolerance_rad:.2f}) after {self._budget_s:.0f} s"
                     + ("" if standing else f", the vehicle moving at {speed:.2f} m/s")
                 )
         elif self.phase is DrivePhase.DRIVE:
@@ -176,6 +208,7 @@ class PalmTreeDrive:
             self.arc += 1
             self.driven_m = 0.0
             self._enter(DrivePhase.CENTRE if self.arc >= p.arcs else DrivePhase.STEER)
+        self._aim_rad = aim
         speed_target = p.speed_mps if self.phase is DrivePhase.DRIVE else 0.0
         return self._command(self.phase, speed_target, stuck)
 
@@ -196,11 +229,13 @@ class PalmTreeDrive:
     def _command(
         self, phase: DrivePhase, speed_mps: float, stuck: str | None = None
     ) -> DriveCommand:
+        target = self.wheel_target_rad
         return DriveCommand(
             phase,
             self.arc,
             self.params.arcs,
-            self.wheel_target_rad,
+            target,
+            target if self._aim_rad is None else self._aim_rad,
             speed_mps,
             self.driven_m,
             stuck,

@@ -168,13 +168,21 @@ def test_a_stop_request_stands_with_the_wheel_where_it_was_and_a_restart_disarms
     assert core.maneuver.samples_since(0, 10_000)["samples"][-1]["palm_phase"] is None
 
 
-def test_the_calibration_aims_the_wheel_at_the_program_s_angle() -> None:
-    """The tyre angle wished is the calibration's for the wheel angle: the servo is aimed
-    back at exactly that wheel angle."""
+def test_engaging_holds_the_wheel_and_the_program_turns_it_through_the_calibration() -> None:
+    """Engaged without the program having the vehicle, the wheel stays where it is (no
+    swing to a lock on the engage press); in speed hold, button held, it turns at the
+    program's pace, the tyre angle wished being the calibration's for the wheel angle
+    the program aims at (the servo is aimed back at exactly that)."""
     core, vehicle = bench(PALM)
     armed(core, vehicle)
-    vehicle.step(core)
-    wish = core.last_wish
-    assert wish is not None and core.programs.palm is not None
-    target = core.programs.palm.program.wheel_target_rad
-    assert math.isclose(SIM_CALIBRATION.wheel_rad_from_tyre(wish.steer_tyre_rad), target)
+    vehicle.hold_button(Buttons.ENGAGE, True)
+    for out in vehicle.run(core, 2.0):
+        assert out.mode is Mode.ENGAGED
+    assert abs(vehicle.wheel_rad) < 0.01
+    vehicle.press(Buttons.SPEED_PLUS)
+    vehicle.run(core, 1.0)
+    palm, wish = core.programs.palm, core.last_wish
+    assert palm is not None and palm.last is not None and wish is not None
+    aim = palm.last.wheel_aim_rad
+    assert 0.5 < aim < PALM.palm_tree_drive.steer_rate_rad_per_s * 1.0 + 1e-9
+    assert math.isclose(SIM_CALIBRATION.wheel_rad_from_tyre(wish.steer_tyre_rad), aim)

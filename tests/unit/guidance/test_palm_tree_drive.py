@@ -35,14 +35,19 @@ class ToyVehicle:
         self.distance_m = 0.0
         # The wheel angle at which each metre was driven (the arcs' held angles).
         self.wheel_while_moving: list[float] = []
+        self.aims: list[float] = []
 
-    def step(self, program: PalmTreeDrive, in_control: bool = True) -> DrivePhase:
-        command = program.update(self.wheel_rad, self.speed_mps, self.now_s, in_control)
+    def step(
+        self, program: PalmTreeDrive, in_control: bool = True, steering: bool = True
+    ) -> DrivePhase:
+        command = program.update(self.wheel_rad, self.speed_mps, self.now_s, in_control, steering)
+        self.aims.append(command.wheel_aim_rad)
         target_speed = command.speed_mps if in_control else 0.0
         self.speed_mps += max(-2.0 * DT_S, min(2.0 * DT_S, target_speed - self.speed_mps))
-        self.wheel_rad += max(
-            -6.0 * DT_S, min(6.0 * DT_S, command.wheel_target_rad - self.wheel_rad)
-        )
+        if steering:  # a servo faster than the program turns it
+            self.wheel_rad += max(
+                -6.0 * DT_S, min(6.0 * DT_S, command.wheel_aim_rad - self.wheel_rad)
+            )
         if self.speed_mps > 0.0:
             self.wheel_while_moving.append(self.wheel_rad)
         self.distance_m += self.speed_mps * DT_S
@@ -95,15 +100,33 @@ def test_no_reading_stands_and_a_stuck_wheel_is_said() -> None:
     assert command.phase is DrivePhase.NO_READING and command.speed_mps == 0.0
     command = program.update(0.0, math.nan, 0.1, True)
     assert command.phase is DrivePhase.NO_READING
-    # A wheel that stays where it is (a servo that cannot turn it).
+    # A wheel that stays where it is (a servo that cannot turn it): given its turn's
+    # time at the program's pace, and the timeout beyond.
+    budget_s = PARAMS.steer_timeout_s + 6.0 / PARAMS.steer_rate_rad_per_s
     now = 1.0
-    while now < 1.0 + PARAMS.steer_timeout_s - 0.5:
+    while now < 1.0 + budget_s - 0.5:
         command = program.update(0.0, 0.0, now, True)
         assert command.stuck is None and command.speed_mps == 0.0
         now += 0.5
     command = program.update(0.0, 0.0, now + 1.0, True)
     assert command.stuck is not None and "+6.00" in command.stuck
     assert command.speed_mps == 0.0 and command.phase is DrivePhase.STEER
+
+
+def test_the_wheel_is_turned_at_its_pace_standing_and_only_with_the_vehicle() -> None:
+    program, vehicle = PalmTreeDrive(PARAMS), ToyVehicle()
+    vehicle.wheel_rad = 1.0
+    for _ in range(100):  # engaged, not in control: held where the operator left it
+        assert vehicle.step(program, in_control=False) is DrivePhase.PAUSED
+    assert vehicle.aims[-1] == 1.0 and vehicle.wheel_rad == 1.0
+    vehicle.wheel_rad = 2.0  # the operator turned it, not engaged: followed, not fought
+    vehicle.step(program, in_control=False, steering=False)
+    assert vehicle.aims[-1] == 2.0
+    followed = len(vehicle.aims)
+    vehicle.run_until(program, DrivePhase.DONE)
+    steps = [abs(b - a) for a, b in itertools.pairwise(vehicle.aims[followed - 1 :])]
+    assert max(steps) <= PARAMS.steer_rate_rad_per_s * DT_S + 1e-9
+    assert max(vehicle.aims) == PARAMS.wheel_targets_rad[0]
 
 
 def test_resumed_from_an_arc_and_refuses_one_past_the_end() -> None:
