@@ -39,6 +39,7 @@ def make_board_clients(
     resolve_sim_port: Callable[[str], str] | None = None,
     *,
     beat_while_reconnecting: bool = False,
+    backoff_cap_s: float = 1.0,
 ) -> BoardClients:
     """The four clients of a vehicle profile; ``sim://`` ports go through ``resolve_sim_port``
     (``ActuatorTwins.port_path``), real ones are used as they are."""
@@ -63,6 +64,7 @@ def make_board_clients(
             baudrate_bps=devices.steering_serial.baudrate_bps,
             max_age_s=ages.steering_pot_max_age_s,
             beat_while_reconnecting=beat_while_reconnecting,
+            backoff_cap_s=backoff_cap_s,
         ),
         throttle=ActuatorClient(
             ThrottleTelemetry,
@@ -70,6 +72,7 @@ def make_board_clients(
             baudrate_bps=devices.throttle_serial.baudrate_bps,
             max_age_s=ages.actuator_board_max_age_s,
             beat_while_reconnecting=beat_while_reconnecting,
+            backoff_cap_s=backoff_cap_s,
         ),
         brake=ActuatorClient(
             BrakeTelemetry,
@@ -77,6 +80,7 @@ def make_board_clients(
             baudrate_bps=devices.brake_serial.baudrate_bps,
             max_age_s=ages.actuator_board_max_age_s,
             beat_while_reconnecting=beat_while_reconnecting,
+            backoff_cap_s=backoff_cap_s,
         ),
         panel=ActuatorClient(
             PanelTelemetry,
@@ -84,5 +88,6 @@ def make_board_clients(
             baudrate_bps=devices.panel_serial.baudrate_bps,
             max_age_s=ages.panel_max_age_s,
             beat_while_reconnecting=beat_while_reconnecting,
+            backoff_cap_s=backoff_cap_s,
         ),
     )

@@ -86,10 +86,12 @@ class GnssInput:
         port_path: str,
         *,
         max_age_s: float,
+        backoff_cap_s: float = 1.0,
         clock: Callable[[], float] = time.monotonic,
     ) -> None:
         """``port_path`` is the tty to open (``sim://gnss`` already resolved to the twin's);
-        ``max_age_s``: the client calls its stream stale past this age."""
+        ``max_age_s``: the client calls its stream stale past this age; ``backoff_cap_s``
+        the longest wait between attempts to open the port."""
         self.topic: Topic[GnssOutput] = Topic(GNSS_POSE_TOPIC)
         self.assembler: GnssPoseAssembler | None = None
         self.problem = NO_ORIGIN
@@ -106,6 +108,7 @@ class GnssInput:
             # Like the boards: whether the receiver is there is the fix's age, judged by
             # whoever steers by it; the heartbeat only says this software is alive.
             beat_while_reconnecting=True,
+            backoff_cap_s=backoff_cap_s,
             clock=clock,
         )
         self.fixes = RateMeter()

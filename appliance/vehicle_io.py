@@ -250,6 +250,7 @@ def _build_scanners(config: VehicleConfig, io: VehicleIO, policy: RestartPolicy)
             read_deadline_periods=5,
             beat_while_waiting=True,
             before_decode=io.work_slot.clear,
+            backoff_cap_s=parts.reconnect_cap_s(config),
         )
         io.scanners[side] = client
         io.services.append(
@@ -279,7 +280,9 @@ def _build_boards(
     policy: RestartPolicy,
     resolve: Callable[[str], str] | None,
 ) -> None:
-    boards = make_board_clients(config, resolve, beat_while_reconnecting=True)
+    boards = make_board_clients(
+        config, resolve, beat_while_reconnecting=True, backoff_cap_s=parts.reconnect_cap_s(config)
+    )
     io.boards = boards
     for name, client in (
         ("steering", boards.steering),
@@ -317,7 +320,11 @@ def _build_gnss(
             )
         port = resolve(port)
     gnss = GnssInput(
-        endpoint, config.positioning.origin, port, max_age_s=config.positioning.max_fix_age_s
+        endpoint,
+        config.positioning.origin,
+        port,
+        max_age_s=config.positioning.max_fix_age_s,
+        backoff_cap_s=parts.reconnect_cap_s(config),
     )
     io.gnss = gnss
     io.topics.register(gnss.topic.name, gnss.topic)

@@ -193,11 +193,24 @@ def pedal_sweep_params(config: VehicleConfig) -> PedalSweepParams:
     )
 
 
+# A simulated device is the simulator's child process coming up beside the daemon: trying
+# it every 0.2 s costs nothing, where the real devices' 1 s cap left the daemon waiting up
+# to a second after the simulator was ready (READY 0.5 s later in every runtime test).
+SIM_RECONNECT_CAP_S = 0.2
+DEVICE_RECONNECT_CAP_S = 1.0
+
+
+def reconnect_cap_s(config: VehicleConfig) -> float:
+    """The longest wait between a device client's attempts to reach its device."""
+    return SIM_RECONNECT_CAP_S if config.simulation.enabled else DEVICE_RECONNECT_CAP_S
+
+
 def pc104_client_params(config: VehicleConfig) -> ClientParams:
     return ClientParams(
         command_period_s=1.0 / config.rates.pc104_command_hz,
         status_max_age_s=config.staleness.pc104_status_max_age_s,
         command_timeout_s=config.safety.lower_layer_command_timeout_s,
+        reopen_backoff_cap_s=reconnect_cap_s(config),
     )
 
 
