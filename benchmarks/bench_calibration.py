@@ -331,6 +331,21 @@ def fixed(daemon: Daemon) -> bool:
     return isinstance(gnss, dict) and bool(gnss.get("fix")) and speed is not None
 
 
+# What is printed, in order: (label, key of one_run's result, unit).
+FIGURES = (
+    ("pot centre error", "centre", "deg tyre"),
+    ("pot map error (max over the valid range)", "map", "deg tyre"),
+    ("palm-tree tyre map error (max over the wheel's travel)", "tyre", "deg tyre"),
+    ("palm-tree k error", "k_pct", "%"),
+    ("palm-tree driven: tyre map error (max over the wheel's travel)", "auto_tyre", "deg tyre"),
+    ("palm-tree driven: k error", "auto_k_pct", "%"),
+    ("pot-center maneuver", "centre_s", "s"),
+    ("pot-map maneuver", "map_s", "s"),
+    ("palm-tree maneuver", "palm_s", "s"),
+    ("palm-tree driven maneuver", "auto_s", "s"),
+)
+
+
 async def main(runs: int) -> None:
     workdir = Path(tempfile.mkdtemp(prefix="dbw-cal-bench-", dir="/tmp"))
     results = []
@@ -339,32 +354,8 @@ async def main(runs: int) -> None:
             results.append(await one_run(seed, workdir))
     finally:
         shutil.rmtree(workdir, ignore_errors=True)
-    print(summarize("pot centre error", [r["centre"] for r in results], "deg tyre"))
-    print(
-        summarize(
-            "pot map error (max over the valid range)", [r["map"] for r in results], "deg tyre"
-        )
-    )
-    print(
-        summarize(
-            "palm-tree tyre map error (max over the wheel's travel)",
-            [r["tyre"] for r in results],
-            "deg tyre",
-        )
-    )
-    print(summarize("palm-tree k error", [r["k_pct"] for r in results], "%"))
-    print(
-        summarize(
-            "palm-tree driven: tyre map error (max over the wheel's travel)",
-            [r["auto_tyre"] for r in results],
-            "deg tyre",
-        )
-    )
-    print(summarize("palm-tree driven: k error", [r["auto_k_pct"] for r in results], "%"))
-    print(summarize("pot-center maneuver", [r["centre_s"] for r in results], "s"))
-    print(summarize("pot-map maneuver", [r["map_s"] for r in results], "s"))
-    print(summarize("palm-tree maneuver", [r["palm_s"] for r in results], "s"))
-    print(summarize("palm-tree driven maneuver", [r["auto_s"] for r in results], "s"))
+    for label, key, unit in FIGURES:
+        print(summarize(label, [r[key] for r in results], unit))
 
 
 if __name__ == "__main__":

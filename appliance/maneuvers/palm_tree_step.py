@@ -31,7 +31,14 @@ from appliance.config.palm_tree_models import palm_tree_drive_problems
 from appliance.maneuvers.merge import StepResult
 from appliance.maneuvers.report import FitReport, item_record
 from appliance.maneuvers.runner import Progress
-from appliance.maneuvers.steps import STILL_MPS, HandStep, bar, sample_number, tail_lines
+from appliance.maneuvers.steps import (
+    STILL_MPS,
+    HandStep,
+    bar,
+    sample_number,
+    sample_speed,
+    tail_lines,
+)
 from calibration.fit_checks import Verdict
 from calibration.k_ratio import KRatioFit, fit_k_from_palm_tree
 from calibration.palm_tree import PalmTreeFit, PalmTreeParams, fit_palm_tree
@@ -173,7 +180,7 @@ class PalmTreeStep(HandStep):
             return "the daemon is not driving the palm tree (it restarted?): resume the run"
         self._palm_phase = str(phase)
         self._palm_arc = arc if isinstance(arc, int) else self._palm_arc
-        speed = sample_number(sample, "speed_mps")
+        speed = sample_speed(sample)
         self._speed_mps = abs(speed) if speed is not None else self._speed_mps
         return None
 
