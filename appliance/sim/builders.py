@@ -22,7 +22,14 @@ from typing import Annotated
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from appliance.sim.site import PERSON_RADIUS_M, WALKING_SPEED_MPS, Circle, Segment, Site
+from appliance.sim.site import (
+    PERSON_RADIUS_M,
+    WALKING_SPEED_MPS,
+    Circle,
+    Segment,
+    Site,
+    SitePallet,
+)
 from appliance.sim.site import Walker as _Walker
 from drivers.geometry import Pose2D
 
@@ -130,6 +137,10 @@ class PalletAreaSpec(_Spec):
     # (ISO 6780) is the other common choice. Fork pockets are ignored: the outline only.
     pallet_length_m: float = Field(1.1, gt=0.0, le=5.0)
     pallet_width_m: float = Field(1.1, gt=0.0, le=5.0)
+    # What the scan plane does not show, for the worker's 3D terminal: a block pallet's
+    # height (ISO 6780: 144 mm) and the cargo on it (a box of the pallet's footprint).
+    pallet_height_m: float = Field(0.144, gt=0.0, le=2.0)
+    cargo_height_m: float = Field(0.0, ge=0.0, le=5.0)
     gap_x_m: float = Field(1.0, ge=0.0, le=50.0)  # aisle for a fork to approach
     gap_y_m: float = Field(0.5, ge=0.0, le=50.0)
     # Random misplacement of each pallet ("placed anywhere at the site worker's
@@ -149,6 +160,7 @@ def pallet_area_site(spec: PalletAreaSpec) -> Site:
     sides = ("left", "back", "right", "front")  # side i runs from corner i to corner i+1
     segments: list[Segment] = []
     targets: list[tuple[str, Pose2D]] = []
+    solids: list[SitePallet] = []
     for row in range(spec.rows):
         for column in range(spec.columns):
             dx, dy = rng.uniform(-spec.jitter_m, spec.jitter_m, size=2)
@@ -165,7 +177,17 @@ def pallet_area_site(spec: PalletAreaSpec) -> Site:
                 (x0, y0), (x1, y1) = world[i], world[(i + 1) % 4]
                 segments.append(Segment(x0, y0, x1, y1, spec.remission, f"{label}.{side}"))
             targets.append((label, pallet))
-    return Site(tuple(segments), name=spec.name, targets=tuple(targets))
+            solids.append(
+                SitePallet(
+                    label,
+                    pallet,
+                    spec.pallet_length_m,
+                    spec.pallet_width_m,
+                    spec.pallet_height_m,
+                    spec.cargo_height_m,
+                )
+            )
+    return Site(tuple(segments), name=spec.name, targets=tuple(targets), pallets=tuple(solids))
 
 
 class YardSpec(_Spec):

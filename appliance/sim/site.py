@@ -126,6 +126,20 @@ class ShapeArrays(NamedTuple):
 
 
 @dataclass(frozen=True)
+class SitePallet:
+    """A pallet as a solid, for what sees more than the scan plane (the worker's 3D
+    terminal): its footprint's centre and length direction, its size, and the cargo
+    standing on it (a box of the footprint's size; 0 for an empty pallet)."""
+
+    name: str
+    pose: Pose2D
+    length_m: float
+    width_m: float
+    height_m: float = 0.144  # ISO 6780 block pallets: 22 mm deck, 100 mm blocks, 22 mm base
+    cargo_height_m: float = 0.0
+
+
+@dataclass(frozen=True)
 class Site:
     """Everything a simulated scanner can see, plus named target poses for the tests.
 
@@ -139,6 +153,7 @@ class Site:
     movers: tuple[Walker, ...] = ()
     name: str = ""
     targets: tuple[tuple[str, Pose2D], ...] = field(default=())
+    pallets: tuple[SitePallet, ...] = field(default=())
 
     def target(self, name: str) -> Pose2D:
         for target_name, pose in self.targets:
@@ -199,4 +214,5 @@ class Site:
             self.movers + other.movers,
             self.name if name is None else name,
             self.targets + other.targets,
+            self.pallets + other.pallets,
         )
