@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 import can as can_lib
 
 from appliance.config import VehicleConfig
-from appliance.config.models import CanEndpoint, ColaDialect, Positioning
+from appliance.config.models import CanEndpoint, ColaDialect, Positioning, VehicleKind
 from appliance.sim.scanner_errors import draw_scanner_errors, noise_seed
 from appliance.sim.site_file import load_site
 from appliance.sim.twins.board_set import ActuatorTwins
@@ -111,6 +111,7 @@ def build_simulator(
             x_m=sim.start_x_m, y_m=sim.start_y_m, yaw_rad=math.radians(sim.start_yaw_deg)
         ),
         step_hz=sim.world_step_hz,
+        steered_axle="rear" if config.kind is VehicleKind.FORKLIFT else "front",
     )
     simulator = Simulator(world)
 

@@ -24,7 +24,15 @@ from pydantic.fields import FieldInfo
 
 from appliance.config.models import VehicleConfig
 
-BUILTIN_PROFILES = ("sim", "flatbed", "flatbed-sim", "husky", "husky-sim")
+BUILTIN_PROFILES = (
+    "sim",
+    "flatbed",
+    "flatbed-sim",
+    "husky",
+    "husky-sim",
+    "forklift",
+    "forklift-sim",
+)
 
 
 @dataclass(frozen=True)

@@ -18,6 +18,7 @@ from typing import Annotated, Literal, Self
 
 from pydantic import AwareDatetime, BaseModel, ConfigDict, Field, field_validator, model_validator
 
+from appliance.config.forklift_models import Forks, PalletGuidanceSettings
 from appliance.config.palm_tree_models import PalmTreeDriveSettings, palm_tree_drive_problems
 from appliance.config.pedal_models import PedalSweepSettings, SimPedals, sweep_limit_problems
 from appliance.config.tuning_models import LookaheadTuningSettings
@@ -39,7 +40,9 @@ class VehicleKind(StrEnum):
 
     FLATBED = "flatbed"  # multi-wheel transporter: straight, crab, rear steer, turn-around
     FOUR_WHEEL_COUNTER_STEER = "four_wheel_counter_steer"  # proportional 4WS (Husky)
-    FRONT_STEER = "front_steer"  # forklift-like, single steered axle
+    FRONT_STEER = "front_steer"  # a single steered front axle
+    # Kinouchi et al.'s automated guided forklift: the rear axle steers, forks ahead.
+    FORKLIFT = "forklift"
 
 
 class SensorMount(_Model):
@@ -589,6 +592,9 @@ class VehicleConfig(_Model):
     pedal_sweep: PedalSweepSettings = PedalSweepSettings()
     lookahead_tuning: LookaheadTuningSettings = LookaheadTuningSettings()
     palm_tree_drive: PalmTreeDriveSettings = PalmTreeDriveSettings()
+    # A forklift's (kind = "forklift"): where its forks are, how it approaches a pallet.
+    forks: Forks = Forks()
+    pallets: PalletGuidanceSettings = PalletGuidanceSettings()
     # How speed is commanded: "pc104" sends a speed set-point to the vehicle's own PC104
     # (the flat-bed); "pedals" closes the speed loop here on the throttle and brake
     # actuators (the Husky, whose engine throttle was its autopilot's speed control).

@@ -139,6 +139,8 @@ def default_pattern(kind: VehicleKind) -> MotionPattern:
             return MotionPattern.COUNTER_STEER
         case VehicleKind.FLATBED | VehicleKind.FRONT_STEER:
             return MotionPattern.FRONT_STEER
+        case VehicleKind.FORKLIFT:
+            return MotionPattern.REAR_STEER
     raise ValueError(f"no default pattern for {kind}")
 
 

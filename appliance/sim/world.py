@@ -16,7 +16,7 @@ import asyncio
 import time
 from collections.abc import Callable
 from dataclasses import replace
-from typing import Any
+from typing import Any, Literal
 
 from appliance.sim.vehicle import (
     VehicleCommand,
@@ -36,6 +36,7 @@ class SimWorld:
         params: VehicleParams,
         initial: VehicleState | None = None,
         step_hz: float = 100.0,
+        steered_axle: Literal["front", "rear"] = "front",
     ) -> None:
         if step_hz <= 0:
             raise ValueError(f"step_hz must be positive (got {step_hz})")
@@ -44,7 +45,12 @@ class SimWorld:
         self._initial = initial if initial is not None else VehicleState()
         self.state = self._initial
         self.command = VehicleCommand()
-        self.default_pattern = MotionPattern.COUNTER_STEER
+        # A forklift's steering wheel turns its rear axle (Kinouchi et al.'s AGF): the
+        # wheel's tyre angle, positive turning left, is then the rear axle's in the
+        # vehicle model's counter-steer sense, in the REAR_STEER pattern.
+        self.steered_axle = steered_axle
+        rear = steered_axle == "rear"
+        self.default_pattern = MotionPattern.REAR_STEER if rear else MotionPattern.COUNTER_STEER
         self._inputs: dict[str, dict[str, Any]] = {}
 
     def reset(self, initial: VehicleState | None = None) -> None:
@@ -83,10 +89,14 @@ class SimWorld:
             for name in STEERING_WHEEL_SOURCES  # priority order: the operator's hands last
             if "front_steer_rad" in slots.get(name, {})
         ]
+        front = wheel[-1] if wheel else pc104.get("front_steer_rad", 0.0)
+        rear = pc104.get("rear_steer_rad", 0.0)
+        if self.steered_axle == "rear":
+            front, rear = 0.0, (wheel[-1] if wheel else rear)
         self.command = VehicleCommand(
             pattern=pc104.get("pattern", self.default_pattern),
-            front_steer_rad=wheel[-1] if wheel else pc104.get("front_steer_rad", 0.0),
-            rear_steer_rad=pc104.get("rear_steer_rad", 0.0),
+            front_steer_rad=front,
+            rear_steer_rad=rear,
             throttle_pct=max((s.get("throttle_pct", 0.0) for s in slots.values()), default=0.0),
             brake_pct=max((s.get("brake_pct", 0.0) for s in slots.values()), default=0.0),
             reverse=any(bool(s.get("reverse", False)) for s in slots.values()),

@@ -1,0 +1,69 @@
+"""The vehicle file's forklift tables: ``[forks]`` and ``[pallets]``.
+
+Kinouchi et al.'s automated guided forklift (AGF) steers its rear axle and carries its
+forks ahead; what it is judged by is where the forks end up against a pallet's
+openings, so the forks' geometry is part of the vehicle, like a scanner's mount. The
+pallet guidance's distances and speeds are the vehicle owner's to set, like the
+docking's: a forklift in a busy storage area moves at a walking pace.
+"""
+
+from __future__ import annotations
+
+from typing import Self
+
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+from appliance.mapping.pallets import PalletKind
+
+
+class _Model(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True, validate_default=True)
+
+
+class Forks(_Model):
+    """The forks in the vehicle frame (x forward from the vehicle's centre, y left)."""
+
+    # From the vehicle's centre to the forks' heel (the carriage face, where a pallet
+    # stops when it is fully on the forks), along x; the forks point forward from it.
+    heel_forward_m: float = Field(1.0, ge=0.0, le=10.0)
+    length_m: float = Field(1.07, gt=0.3, le=3.0)  # ISO 2331: 1070 mm, a common fork
+    # Centre to centre of the two forks: fits both standard pallets' openings.
+    spread_m: float = Field(0.56, gt=0.1, le=2.0)
+    # Lateral offset of the forks' centre line (a side shifter's position; 0 = centred).
+    offset_y_m: float = Field(0.0, ge=-0.5, le=0.5)
+
+    @property
+    def tips_forward_m(self) -> float:
+        return self.heel_forward_m + self.length_m
+
+
+class PalletGuidanceSettings(_Model):
+    """How the forklift approaches a pallet it is sent to (the `pallet` autopilot source)."""
+
+    # The pallet footprints the vehicle's detections are matched against.
+    kinds: tuple[PalletKind, ...] = (PalletKind.EUR, PalletKind.JIS)
+    # Where the fork tips stop before the pallet's face for the final straight approach
+    # to start: the re-detection happens from here (the pallet well inside both
+    # scanners' fields), and the last straight is this long.
+    approach_standoff_m: float = Field(1.5, ge=0.5, le=10.0)
+    # How near the fork tips go: 0 = at the face (the openings), > 0 stops short.
+    final_gap_m: float = Field(0.0, ge=0.0, le=1.0)
+    cruise_speed_mps: float = Field(0.8, gt=0.0, le=3.0)
+    final_speed_mps: float = Field(0.2, gt=0.0, le=1.0)
+    # The pallet must be re-detected this near to where the map puts it, or the
+    # approach is refused (a different pallet, or the worker's map is off).
+    redetect_gate_m: float = Field(0.5, gt=0.0, le=3.0)
+    # Final-approach tolerances the vehicle must be inside before the forks go in.
+    max_lateral_error_m: float = Field(0.01, gt=0.0, le=0.2)
+    max_heading_error_deg: float = Field(0.3, gt=0.0, le=5.0)
+
+    @model_validator(mode="after")
+    def _speeds_are_ordered(self) -> Self:
+        if self.final_speed_mps > self.cruise_speed_mps:
+            raise ValueError(
+                "final_speed_mps must not exceed cruise_speed_mps "
+                f"(got {self.final_speed_mps} > {self.cruise_speed_mps})"
+            )
+        if not self.kinds:
+            raise ValueError("kinds must name at least one pallet footprint")
+        return self
