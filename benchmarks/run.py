@@ -22,6 +22,7 @@ BENCHMARKS = [
     "benchmarks.bench_tracking",
     "benchmarks.bench_pedal_sweep",
     "benchmarks.bench_lookahead",
+    "benchmarks.bench_map_merge",
 ]
 
 
