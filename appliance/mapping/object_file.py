@@ -8,7 +8,10 @@ the raw cloud, the pallets it already found, each a pose in the terminal's frame
                   "yaw_deg": 90.0, "sigma_xy_m": 0.03, "sigma_yaw_deg": 1.0}]}
 
 ``kind`` is a `PalletKind` value; the sigmas are optional and default to what a consumer
-device achieves (3 cm, 1 deg); the covariance is diag(σxy², σxy², σyaw²). People write
+device achieves (3 cm, 1 deg); the covariance is diag(σxy², σxy², σyaw²). A map this
+project wrote (`dbw merge --out`) may give ``covariance_m_rad`` instead: the full 3x3
+over (x, y, yaw) in m², m·rad, rad², symmetric and positive semi-definite, and
+``seen_by`` ("vehicle" or "worker": who saw the pallet, for a reader). People write
 these files by hand, so a misspelled key is refused rather than ignored (``extra``
 forbidden, a key given twice refused), names must be unique (the merge reports pallets
 by name), and every problem is listed at once with its JSON path (``objects[2].yaw_deg``).
@@ -28,10 +31,10 @@ import math
 from collections import Counter
 from collections.abc import Callable
 from decimal import Context, Decimal
-from typing import Annotated, Any
+from typing import Annotated, Any, Literal, Self
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from appliance.mapping.pallets import Pallet, PalletKind, PalletMap
 
@@ -76,6 +79,32 @@ class ObjectEntry(BaseModel):
     yaw_deg: Annotated[float, _finite(-360.0, 360.0)]
     sigma_xy_m: Annotated[float, _finite(MIN_SIGMA, 10.0)] = DEFAULT_SIGMA_XY_M
     sigma_yaw_deg: Annotated[float, _finite(MIN_SIGMA, 180.0)] = DEFAULT_SIGMA_YAW_DEG
+    covariance_m_rad: (
+        Annotated[
+            list[
+                Annotated[
+                    list[Annotated[float, _finite(-1e6, 1e6)]], Field(min_length=3, max_length=3)
+                ]
+            ],
+            Field(min_length=3, max_length=3),
+        ]
+        | None
+    ) = None
+    seen_by: Literal["vehicle", "worker"] | None = None
+
+    @model_validator(mode="after")
+    def _one_covariance(self) -> Self:
+        if self.covariance_m_rad is None:
+            return self
+        if {"sigma_xy_m", "sigma_yaw_deg"} & self.model_fields_set:
+            raise ValueError("give covariance_m_rad or the sigmas, not both")
+        matrix = np.array(self.covariance_m_rad)
+        scale = float(np.abs(matrix).max()) or 1.0
+        if not np.allclose(matrix, matrix.T, rtol=0.0, atol=1e-12 * scale):
+            raise ValueError("covariance_m_rad must be symmetric")
+        if float(np.linalg.eigvalsh(0.5 * (matrix + matrix.T))[0]) < -1e-12 * scale:
+            raise ValueError("covariance_m_rad must be positive semi-definite")
+        return self
 
 
 class ObjectMapFile(BaseModel):
@@ -108,6 +137,9 @@ def parse_object_map(data: bytes, *, source: str = "") -> PalletMap:
         yaw_rad = _radians(Decimal(numbers["yaw_deg"]))
         sigma_yaw_rad = _radians(Decimal(numbers.get("sigma_yaw_deg", DEFAULT_SIGMA_YAW_DEG)))
         covariance = np.diag([entry.sigma_xy_m**2, entry.sigma_xy_m**2, sigma_yaw_rad**2])
+        if entry.covariance_m_rad is not None:
+            given = np.array(entry.covariance_m_rad)
+            covariance = 0.5 * (given + given.T)
         pallets.append(Pallet(entry.x_m, entry.y_m, yaw_rad, covariance, entry.kind, entry.name))
     return PalletMap(tuple(pallets), model.frame, source)
 
