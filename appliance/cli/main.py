@@ -18,6 +18,7 @@ from appliance.cli.features import features
 from appliance.cli.gnss import gnss
 from appliance.cli.lms111 import lms111
 from appliance.cli.localize import localize
+from appliance.cli.merge import merge
 from appliance.cli.record import record, replay
 from appliance.cli.route import route
 from appliance.cli.route_record import route_record as _route_record  # noqa: F401 (registers)
@@ -78,6 +79,7 @@ add_maneuver_commands(calibrate)
 cli.add_command(calibrate)
 cli.add_command(features)
 cli.add_command(localize)
+cli.add_command(merge)
 cli.add_command(gnss)
 cli.add_command(route)
 for _command in CONTROL_COMMANDS:

@@ -18,6 +18,7 @@ import click
 import structlog
 
 from appliance.cli.sim_dock import dock
+from appliance.cli.sim_survey import survey
 from appliance.cli.sim_track import track
 from appliance.config import ConfigError, VehicleConfig, load_config
 from appliance.config.atomic import write_text_atomic
@@ -264,3 +265,4 @@ def sim(
 
 sim.add_command(dock)
 sim.add_command(track)
+sim.add_command(survey)
