@@ -1,11 +1,13 @@
 """The operator page's HTTP/1.1, without I/O: request heads in, typed requests out,
 responses as bytes.
 
-Only what a read-only page needs: GET and HEAD, no bodies, one request per connection
-(every response says ``Connection: close``, so a browser holds no idle connection that
-would count against the server's small connection limit). The head is bounded in bytes
-and header lines; anything that is not a plain, small request raises :class:`HttpError`,
-which carries the status to answer with, and nothing else.
+Only what a small page needs: GET and HEAD, and POST with a small body for a reader
+that allows one (``max_body_bytes``: the tablet page's requests), one request per
+connection (every response says ``Connection: close``, so a browser holds no idle
+connection that would count against the server's small connection limit). The head is
+bounded in bytes and header lines, a body by its Content-Length (chunked bodies are
+refused); anything that is not a plain, small request raises :class:`HttpError`, which
+carries the status to answer with, and nothing else.
 """
 
 from __future__ import annotations
@@ -68,6 +70,7 @@ class Request:
     query: str
     version: str  # "HTTP/1.0" or "HTTP/1.1"
     headers: tuple[tuple[str, str], ...]  # names lower-cased, in the order received
+    body: bytes = b""  # a POST's, when the reader allows bodies
 
     def header(self, name: str) -> str | None:
         """The value of the one header ``name`` (lower case), None if absent."""
@@ -85,11 +88,20 @@ class RequestReader:
     :class:`HttpError` for anything malformed or too large, never another exception.
     """
 
-    def __init__(self, max_head_bytes: int = MAX_HEAD_BYTES, max_headers: int = MAX_HEADERS):
-        if max_head_bytes < 64 or max_headers < 1:
-            raise ValueError("max_head_bytes must be at least 64 and max_headers at least 1")
+    def __init__(
+        self,
+        max_head_bytes: int = MAX_HEAD_BYTES,
+        max_headers: int = MAX_HEADERS,
+        max_body_bytes: int = 0,
+    ):
+        if max_head_bytes < 64 or max_headers < 1 or not 0 <= max_body_bytes <= 1 << 20:
+            raise ValueError(
+                "max_head_bytes must be at least 64, max_headers at least 1 and "
+                "max_body_bytes within [0, 1 MiB]"
+            )
         self.max_head_bytes = max_head_bytes
         self.max_headers = max_headers
+        self.max_body_bytes = max_body_bytes
         self._buffer = bytearray()
         self._closed = False
         self._done = False
@@ -101,7 +113,7 @@ class RequestReader:
             self._closed = True
             return
         # Keep at most one byte past the limit: enough to know the limit was passed.
-        room = self.max_head_bytes + 4 - len(self._buffer)
+        room = self.max_head_bytes + self.max_body_bytes + 4 - len(self._buffer)
         self._buffer += data[: max(room, 0)]
 
     def next_event(self) -> Event | NeedData:
@@ -122,12 +134,42 @@ class RequestReader:
                     return ConnectionClosed()
                 raise HttpError(HTTPStatus.BAD_REQUEST, "connection closed mid-request")
             return NEED_DATA
+        request = parse_head(buffer[: end.start()], self.max_headers, self.max_body_bytes > 0)
+        if request.method != "POST":
+            self._done = True
+            return request
+        length = _body_length(request, self.max_body_bytes)
+        body = buffer[end.end() : end.end() + length]
+        if len(body) < length:
+            if self._closed:
+                self._done = True
+                raise HttpError(HTTPStatus.BAD_REQUEST, "connection closed mid-body")
+            return NEED_DATA
         self._done = True
-        return parse_head(buffer[: end.start()], self.max_headers)
+        return Request(
+            request.method, request.path, request.query, request.version, request.headers, body
+        )
 
 
-def parse_head(head: bytes, max_headers: int = MAX_HEADERS) -> Request:
-    """The request line and header lines (without the final empty line) as a request."""
+def _body_length(request: Request, max_body_bytes: int) -> int:
+    if request.header("transfer-encoding") is not None:
+        raise HttpError(HTTPStatus.NOT_IMPLEMENTED, "chunked bodies are not taken: Content-Length")
+    lengths = [value for name, value in request.headers if name == "content-length"]
+    if not lengths:
+        raise HttpError(HTTPStatus.LENGTH_REQUIRED, "a POST needs a Content-Length")
+    if len(set(lengths)) != 1 or not lengths[0].isdigit() or len(lengths[0]) > 9:
+        raise HttpError(HTTPStatus.BAD_REQUEST, "malformed Content-Length")
+    length = int(lengths[0])
+    if length > max_body_bytes:
+        raise HttpError(
+            HTTPStatus.REQUEST_ENTITY_TOO_LARGE, f"body of {length} bytes, at most {max_body_bytes}"
+        )
+    return length
+
+
+def parse_head(head: bytes, max_headers: int = MAX_HEADERS, post: bool = False) -> Request:
+    """The request line and header lines (without the final empty line) as a request;
+    ``post``: a POST is allowed (its body is the reader's to take)."""
     lines = head.replace(b"\r\n", b"\n").split(b"\n")
     method, target, version = _request_line(lines[0])
     if len(lines) - 1 > max_headers:
@@ -135,14 +177,19 @@ def parse_head(head: bytes, max_headers: int = MAX_HEADERS) -> Request:
             HTTPStatus.REQUEST_HEADER_FIELDS_TOO_LARGE,
             f"{len(lines) - 1} header lines, at most {max_headers}",
         )
-    if method not in ALLOWED_METHODS:
-        raise HttpError(HTTPStatus.METHOD_NOT_ALLOWED, f"{method} not allowed: GET or HEAD")
+    allowed = (*ALLOWED_METHODS, "POST") if post else ALLOWED_METHODS
+    if method not in allowed:
+        raise HttpError(
+            HTTPStatus.METHOD_NOT_ALLOWED, f"{method} not allowed: {', '.join(allowed)}"
+        )
     headers = tuple(_header(line) for line in lines[1:])
     hosts = [value for name, value in headers if name == "host"]
     if len(hosts) > 1 or (version == "HTTP/1.1" and not hosts):
         raise HttpError(HTTPStatus.BAD_REQUEST, "HTTP/1.1 needs exactly one Host header")
     path, _, query = target.partition("?")
-    if any(name in ("content-length", "transfer-encoding") for name, _ in headers):
+    if method != "POST" and any(
+        name in ("content-length", "transfer-encoding") for name, _ in headers
+    ):
         length = next((v for n, v in headers if n == "content-length"), None)
         if length is None or length.strip() != "0":
             raise HttpError(HTTPStatus.BAD_REQUEST, "a GET or HEAD request has no body")
