@@ -264,7 +264,8 @@ class OperatorPage:
             return
         self._refusing += 1
         try:
-            with contextlib.suppress(TimeoutError, OSError):
+            # Whatever it is (a POST, garbage): the answer is 503 all the same.
+            with contextlib.suppress(TimeoutError, OSError, HttpError):
                 async with asyncio.timeout(BUSY_READ_S):
                     await read_request(reader, RequestReader())
             busy = HttpError(HTTPStatus.SERVICE_UNAVAILABLE, "too many connections, try again")
