@@ -182,6 +182,7 @@ class ControlCore:
         self._throttle_pedal_was = False
         self._held = False
         self._bench_hold = False
+        self._tablet_held = False
         self._bench_estop = False
         self._conditions = _NOT_READY
         self._measured: Measurements | None = None
@@ -255,7 +256,8 @@ class ControlCore:
         self._operator_events(operator, m, now_s)
         # 5. buttons
         self._panel_events(panel, m, now_s)
-        held = bool(panel.down & Buttons.ENGAGE) or self._bench_hold
+        tablet_held = self._tablet_events(inputs, m, now_s)
+        held = bool(panel.down & Buttons.ENGAGE) or self._bench_hold or tablet_held
         if held != self._held:
             self._held = held
             self._apply(HoldToMovePressed() if held else HoldToMoveReleased(), now_s)
@@ -686,6 +688,26 @@ class ControlCore:
                     self._estop_reset(now_s, "panel")
                 else:
                     self._apply(ManualOverridePressed(), now_s)
+
+    def _tablet_events(self, inputs: ControlInputs, m: Measurements, now_s: float) -> bool:
+        """The tablet's hold button (Kinouchi et al., Fig. 6) as the panel's: a press
+        engages (ENGAGE) and, engaged, lets the source set the speed (SPEED+ at the
+        measured speed); held, it is ENGAGE held for hold-to-move. Nothing else: the
+        mode machine refuses what it would refuse the panel. Held only until its last
+        beat's time runs out, whatever the page last said."""
+        tablet = inputs.tablet
+        held = tablet is not None and tablet.held and now_s <= tablet.until_s
+        if held and not self._tablet_held:
+            if self.state.mode is Mode.READY:
+                self._apply(EngagePressed(), now_s)
+            if self.state.mode is Mode.ENGAGED:
+                speed = m.speed_mps if m.speed_mps is not None else math.nan
+                self._apply(SpeedPlusPressed(speed if math.isfinite(speed) else 0.0), now_s)
+            self._note("tablet_pressed", mode=str(self.state.mode))
+        elif self._tablet_held and not held:
+            self._note("tablet_released")
+        self._tablet_held = held
+        return held
 
     def _estop_reset(self, now_s: float, by: str) -> tuple[bool, str]:
         """The reset procedure: the mushroom twisted out, then the override button."""

@@ -32,6 +32,16 @@ class LinkCounts:
 
 
 @dataclass(frozen=True)
+class TabletHold:
+    """The tablet's hold-to-move button as its gate last saw it (`appliance.tablet_page`):
+    held until ``until_s`` (the control loop's clock) unless a later word says otherwise.
+    The core lets it lapse at ``until_s`` itself: a frozen page says nothing more."""
+
+    held: bool
+    until_s: float
+
+
+@dataclass(frozen=True)
 class ControlInputs:
     ages_s: Mapping[str, float]
     steering: SteeringTelemetry | None = None
@@ -50,3 +60,5 @@ class ControlInputs:
     gnss_seq: int | None = None
     # The PC's own health (appliance/system_monitor.py), where the daemon monitors it.
     system: SystemHealth | None = None
+    # The tablet page's hold (a forklift guided from a tablet), where the daemon serves it.
+    tablet: TabletHold | None = None

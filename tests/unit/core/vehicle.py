@@ -16,7 +16,7 @@ import math
 from appliance.config.calibration import Calibration
 from appliance.config.simulated_calibration import simulated_calibration
 from appliance.core.core import ControlCore
-from appliance.core.inputs import ControlInputs, LinkCounts
+from appliance.core.inputs import ControlInputs, LinkCounts, TabletHold
 from appliance.core.output import CoreOutput
 from drivers.actuators.messages import (
     BUTTON_ORDER,
@@ -73,6 +73,7 @@ class BenchVehicle:
         self.unplugged: set[str] = set()
         self.board_faults: dict[str, FaultCode] = {}
         self.last: CoreOutput | None = None
+        self.tablet: TabletHold | None = None  # the tablet page's hold, where one is paired
 
     # ---- what tests do to the vehicle -------------------------------------------------
     def press(self, button: Buttons) -> None:
@@ -205,6 +206,7 @@ class BenchVehicle:
             panel_seq=None if panel is None else self.panel_seq,
             pc104_status=status,
             pc104_link=LinkCounts(errors=self.link_errors, good=self.link_good),
+            tablet=self.tablet,
         )
 
     # ---- the loop ------------------------------------------------------------------------
