@@ -21,7 +21,7 @@ from collections.abc import Callable
 from typing import Any, Protocol
 
 from appliance.core.core import ControlCore, CoreOutput
-from appliance.core.inputs import ControlInputs, LinkCounts
+from appliance.core.inputs import TABLET_HOLD_TOPIC, ControlInputs, LinkCounts
 from appliance.gnss_input import GNSS_POSE_TOPIC
 from appliance.logs import get_logger
 from appliance.supervisor import ServiceContext
@@ -84,6 +84,8 @@ class TopicInputs:
             gnss=None if gnss is None else gnss.value,
             gnss_seq=None if gnss is None else gnss.seq,
             system=self._latest(SYSTEM_HEALTH_TOPIC) if SYSTEM_HEALTH_TOPIC in ages else None,
+            # Only a daemon serving the tablet page has the topic (see GNSS above).
+            tablet=self._latest(TABLET_HOLD_TOPIC) if TABLET_HOLD_TOPIC in ages else None,
         )
 
 

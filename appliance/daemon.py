@@ -45,6 +45,7 @@ from appliance.sim.scanner_truth import with_simulated_scanners
 from appliance.supervisor import ServiceContext, ServiceSpec, ServiceState, Supervisor
 from appliance.system_monitor import SYSTEM_HEALTH_TOPIC, SystemMonitor
 from appliance.systemd_notify import SystemdNotifier
+from appliance.tablet_page.service import TABLET_TOPIC, TabletService
 from appliance.vehicle_io import (
     VehicleCommandSink,
     VehicleIO,
@@ -184,6 +185,19 @@ class Daemon:
                 settings.port,
                 allow_non_loopback=settings.allow_non_loopback,
             )
+        # The tablet page: a worker's tablet guides a forklift (off: None). Its topic is
+        # registered after the recorder attached: the core's inputs carry the hold into
+        # every recorded cycle, which is all a replay needs.
+        self.tablet: TabletService | None = None
+        if config.tablet_page.enabled:
+            self.tablet = TabletService(
+                config.tablet_page,
+                self.clock,
+                self.control.ticker.wake_early,
+                self._tablet_state,
+                getattr(self.core.autopilot, "select_pallet", None),
+            )
+            self.io.topics.register(TABLET_TOPIC, self.tablet.topic)
         self.control_server = ControlServer(
             control_socket if control_socket is not None else config.paths.control_socket,
             DaemonControlApi(self),
@@ -242,6 +256,19 @@ class Daemon:
                     ServiceSpec(
                         name="operator_page",
                         run=self.operator_page.run,
+                        critical=False,
+                        restart=policy,
+                        heartbeat_deadline_s=OPERATOR_PAGE_HEARTBEAT_DEADLINE_S,
+                    )
+                ]
+            ),
+            *(
+                []
+                if self.tablet is None
+                else [
+                    ServiceSpec(
+                        name="tablet_page",
+                        run=self.tablet.page.run,
                         critical=False,
                         restart=policy,
                         heartbeat_deadline_s=OPERATOR_PAGE_HEARTBEAT_DEADLINE_S,
@@ -488,6 +515,15 @@ class Daemon:
         """One line for `systemctl status`: what the daemon is doing, in words."""
         return status_line(self.supervisor.latched_error, self.supervisor.snapshot(), self.core)
 
+    def _tablet_state(self) -> dict[str, Any]:
+        """What the tablet draws: the mode, and the pallet source's map, plan and pose
+        where the vehicle has one (`state_for_tablet`)."""
+        document: dict[str, Any] = {"mode": str(self.core.state.mode).upper().replace("_", " ")}
+        source_state = getattr(self.core.autopilot, "state_for_tablet", None)
+        if callable(source_state):
+            document.update(source_state())
+        return document
+
     def status_document(self) -> dict[str, Any]:
         """What `dbw status` shows: the core's view plus inputs, loop figures, services."""
         now_s = self.clock()
@@ -506,6 +542,7 @@ class Daemon:
             gnss=None if self.io.gnss is None else self.io.gnss.status(now_s),
             recording=None if self.recorder is None else self.recorder.status(),
             system=None if self.system_monitor is None else self.system_monitor.status(now_s),
+            tablet=None if self.tablet is None else self.tablet.status(),
         )
 
 

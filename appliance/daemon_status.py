@@ -71,6 +71,7 @@ def status_document(
     gnss: Mapping[str, Any] | None = None,
     recording: Mapping[str, Any] | None = None,
     system: Mapping[str, Any] | None = None,
+    tablet: Mapping[str, Any] | None = None,
 ) -> dict[str, Any]:
     """What `dbw status` shows: the core's view plus inputs, loop figures, services, and
     (given ``links``, `vehicle_io.link_summary`) one line per device link, and (given
@@ -96,6 +97,8 @@ def status_document(
     doc["loop"] = {**loop, "work_deferred": work_deferred}
     doc["event_loop"] = {**event_loop.as_dict(), "since_start": event_loop_worst}
     doc["services"] = services
+    if tablet is not None:
+        doc["tablet"] = dict(tablet)
     if links is not None:
         doc["links"] = dict(links)
     if gnss is not None:  # the latest epoch, where the vehicle has a receiver

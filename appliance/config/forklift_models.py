@@ -67,3 +67,21 @@ class PalletGuidanceSettings(_Model):
         if not self.kinds:
             raise ValueError("kinds must name at least one pallet footprint")
         return self
+
+
+class TabletPageSettings(_Model):
+    """The tablet page (`appliance/tablet_page/`): a worker guides the forklift from a
+    tablet on the site's network (Kinouchi et al., Fig. 6). Off by default; it listens on
+    the address given (the vehicle PC's on the site's WLAN), every request authenticated
+    with a token paired by the code `dbw status` shows. Only with hold-to-move: the
+    tablet's button is the panel's ENGAGE held, and nothing more."""
+
+    enabled: bool = False
+    host: str = Field("127.0.0.1", min_length=1, max_length=255)
+    port: int = Field(8090, ge=0, le=65535)
+    # Other names the tablet may use for the vehicle (its DNS name); any other Host
+    # header is refused (a web page elsewhere resolving its name to the vehicle).
+    host_names: tuple[str, ...] = ()
+    # The page beats every 0.1 s while the button is held; this long without a beat and
+    # the hold lapses (the mode machine's hold-to-move then stops the vehicle).
+    hold_timeout_s: float = Field(0.3, ge=0.15, le=2.0)

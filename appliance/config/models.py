@@ -18,7 +18,7 @@ from typing import Annotated, Literal, Self
 
 from pydantic import AwareDatetime, BaseModel, ConfigDict, Field, field_validator, model_validator
 
-from appliance.config.forklift_models import Forks, PalletGuidanceSettings
+from appliance.config.forklift_models import Forks, PalletGuidanceSettings, TabletPageSettings
 from appliance.config.palm_tree_models import PalmTreeDriveSettings, palm_tree_drive_problems
 from appliance.config.pedal_models import PedalSweepSettings, SimPedals, sweep_limit_problems
 from appliance.config.tuning_models import LookaheadTuningSettings
@@ -595,6 +595,7 @@ class VehicleConfig(_Model):
     # A forklift's (kind = "forklift"): where its forks are, how it approaches a pallet.
     forks: Forks = Forks()
     pallets: PalletGuidanceSettings = PalletGuidanceSettings()
+    tablet_page: TabletPageSettings = TabletPageSettings()
     # How speed is commanded: "pc104" sends a speed set-point to the vehicle's own PC104
     # (the flat-bed); "pedals" closes the speed loop here on the throttle and brake
     # actuators (the Husky, whose engine throttle was its autopilot's speed control).
@@ -690,6 +691,11 @@ class VehicleConfig(_Model):
             problems = sweep_limit_problems(self.pedal_sweep, self.limits, self.engagement)
             if problems:
                 raise ValueError("; ".join(problems))
+        if self.tablet_page.enabled and not engagement.hold_to_move:
+            raise ValueError(
+                "tablet_page.enabled needs engagement.hold_to_move = true: the tablet's "
+                "button is hold-to-move's, and a vehicle without it has none to hold"
+            )
         if self.palm_tree_drive.allowed:
             problems = palm_tree_drive_problems(self.palm_tree_drive, self.limits, self.engagement)
             if problems:

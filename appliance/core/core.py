@@ -703,7 +703,7 @@ class ControlCore:
             if self.state.mode is Mode.ENGAGED:
                 speed = m.speed_mps if m.speed_mps is not None else math.nan
                 self._apply(SpeedPlusPressed(speed if math.isfinite(speed) else 0.0), now_s)
-            self._note("tablet_pressed", mode=str(self.state.mode))
+            self._note("tablet_pressed", now_in=str(self.state.mode))
         elif self._tablet_held and not held:
             self._note("tablet_released")
         self._tablet_held = held

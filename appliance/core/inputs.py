@@ -31,6 +31,9 @@ class LinkCounts:
     good: int = 0  # frames accepted
 
 
+TABLET_HOLD_TOPIC = "tablet.hold"  # where the tablet page publishes its hold
+
+
 @dataclass(frozen=True)
 class TabletHold:
     """The tablet's hold-to-move button as its gate last saw it (`appliance.tablet_page`):

@@ -10,7 +10,7 @@ from pydantic import ValidationError
 
 from appliance.config.forklift_models import PalletGuidanceSettings
 from appliance.config.loader import load_config
-from appliance.config.models import VehicleKind
+from appliance.config.models import VehicleConfig, VehicleKind
 from appliance.core.autopilot import default_pattern
 from appliance.sim.vehicle import VehicleParams
 from appliance.sim.world import SimWorld
@@ -57,3 +57,12 @@ def test_pallet_guidance_refuses_a_final_speed_above_the_cruise() -> None:
         PalletGuidanceSettings(cruise_speed_mps=0.3, final_speed_mps=0.5)
     with pytest.raises(ValidationError, match="at least one"):
         PalletGuidanceSettings(kinds=())
+
+
+def test_the_tablet_page_needs_hold_to_move() -> None:
+    data = load_config("forklift-sim").model_dump()
+    data["tablet_page"] = {"enabled": True, "host": "127.0.0.1", "port": 0}
+    VehicleConfig.model_validate(data)
+    data["engagement"]["hold_to_move"] = False
+    with pytest.raises(ValidationError, match="hold_to_move"):
+        VehicleConfig.model_validate(data)
