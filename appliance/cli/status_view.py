@@ -102,6 +102,14 @@ def render_status(doc: dict[str, Any]) -> str:
     recording = _recording_line(doc)
     if recording:
         lines.append(recording)
+    tablet = as_dict(doc.get("tablet"))
+    if tablet:
+        paired = "paired" if tablet.get("paired") else "not paired"
+        held = ", held" if tablet.get("held") else ""
+        lines.append(
+            f"tablet: {tablet.get('address')} {paired}{held}, pairing code "
+            f"{tablet.get('pairing_code')} ({tablet.get('refused_requests', 0)} refused)"
+        )
     lines += _name_table("services", doc.get("services"))
     return "\n".join(lines)
 
