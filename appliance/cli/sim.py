@@ -18,6 +18,7 @@ import click
 import structlog
 
 from appliance.cli.sim_dock import dock
+from appliance.cli.sim_pallet import pallet
 from appliance.cli.sim_survey import survey
 from appliance.cli.sim_track import track
 from appliance.config import ConfigError, VehicleConfig, load_config
@@ -266,3 +267,4 @@ def sim(
 sim.add_command(dock)
 sim.add_command(track)
 sim.add_command(survey)
+sim.add_command(pallet)

@@ -29,6 +29,7 @@ class Forks(_Model):
     length_m: float = Field(1.07, gt=0.3, le=3.0)  # ISO 2331: 1070 mm, a common fork
     # Centre to centre of the two forks: fits both standard pallets' openings.
     spread_m: float = Field(0.56, gt=0.1, le=2.0)
+    width_m: float = Field(0.12, gt=0.03, le=0.5)  # one fork's (ISO 2331 class II: 100-125 mm)
     # Lateral offset of the forks' centre line (a side shifter's position; 0 = centred).
     offset_y_m: float = Field(0.0, ge=-0.5, le=0.5)
 
