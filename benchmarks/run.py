@@ -19,6 +19,7 @@ BENCHMARKS = [
     "benchmarks.bench_scanner_model",
     "benchmarks.bench_features",
     "benchmarks.bench_docking",
+    "benchmarks.bench_pallet",
     "benchmarks.bench_tracking",
     "benchmarks.bench_pedal_sweep",
     "benchmarks.bench_lookahead",

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -38,6 +39,7 @@ from appliance.localization.launcher_map import CylinderLandmark
 from appliance.localization.localizer_params import ScannerSetup
 from appliance.mapping.cloud_pallets import detect_pallets
 from appliance.mapping.merge import MergeParams, MergeRefusal, merge_maps
+from appliance.mapping.object_file import DEFAULT_SIGMA_XY_M, DEFAULT_SIGMA_YAW_DEG
 from appliance.mapping.pallet_fusion import fuse_pallets
 from appliance.mapping.pallets import Pallet, PalletKind, PalletMap
 from appliance.mapping.scan_pallets import detect_scan_pallets
@@ -49,7 +51,7 @@ from appliance.sim.terminal_errors import CONSUMER, WORSE
 from appliance.sim.twins.pc104_core import PidSpeedController
 from appliance.sim.vehicle import VehicleCommand, VehicleParams, VehicleState, step
 from appliance.sim.worker_route import walk_around
-from appliance.sim.worker_terminal import survey
+from appliance.sim.worker_terminal import WorkerObject, survey, survey_objects
 from drivers.geometry import Pose2D
 from drivers.lms111.mounted import DEVICE_FORWARD_RAD, mount_pose
 from drivers.pc104.messages import MotionPattern
@@ -79,6 +81,9 @@ TRIALS: dict[int, PalletTrial] = {
 class PalletRunParams:
     trial: int = 1
     seed: int = 1
+    # The worker's map as the terminal hands it over: its 3D cloud (the paper's; pallets
+    # found here through proximity points) or the pallets it found itself (an object list).
+    worker_form: str = "cloud"
     control_hz: float = 50.0
     world_hz: float = 100.0
     timeout_s: float = 400.0
@@ -132,6 +137,20 @@ def _failure(
         float(values["merge_error_deg"]), float(values["plan_length_m"]), None,
         params.trial, params.seed,
     )  # fmt: skip
+
+
+def _object_map(objects: Sequence[WorkerObject]) -> PalletMap:
+    """The terminal's own object list: each a standard pallet with the sigmas a consumer
+    terminal claims (the object file's defaults)."""
+    sigma_yaw = math.radians(DEFAULT_SIGMA_YAW_DEG)
+    covariance = np.diag([DEFAULT_SIGMA_XY_M**2, DEFAULT_SIGMA_XY_M**2, sigma_yaw**2])
+    pallets = []
+    for item in objects:
+        dimensions = f"{round(item.length_m * 1000)}x{round(item.width_m * 1000)}"
+        if dimensions in {kind.value for kind in PalletKind}:
+            kind = PalletKind(dimensions)
+            pallets.append(Pallet(item.x_m, item.y_m, item.yaw_rad, covariance, kind, item.name))
+    return PalletMap(tuple(pallets), "worker")
 
 
 def site_obstacles(site: Site, clearance_m: float) -> tuple[Obstacle, ...]:
@@ -202,14 +221,21 @@ class _Scanners:
 
 def run_pallet(config: VehicleConfig, params: PalletRunParams) -> PalletResult:
     started = time.perf_counter()
+    if params.worker_form not in ("cloud", "objects"):
+        raise ValueError(f"worker_form must be 'cloud' or 'objects', not {params.worker_form!r}")
     trial = TRIALS[params.trial]
     site = load_site(config.simulation.site)
     rng = np.random.default_rng(params.seed)
     truth_target = true_pallet(site, trial.target)
     # The worker's map: a walk with the terminal, its pallets through proximity points.
     errors = WORSE if trial.worse_worker_map else CONSUMER
-    cloud = survey(site, MARKER, walk_around(site), rng=rng, errors=errors)
-    worker = detect_pallets(cloud.xyz_m, cloud.origins_m, frame="worker").pallet_map
+    if params.worker_form == "objects":
+        listed = survey_objects(site, MARKER, errors, rng, viewpoints=walk_around(site))
+        worker, worker_in_site = _object_map(listed.objects), listed.t0_true
+    else:
+        cloud = survey(site, MARKER, walk_around(site), rng=rng, errors=errors)
+        worker = detect_pallets(cloud.xyz_m, cloud.origins_m, frame="worker").pallet_map
+        worker_in_site = cloud.t0_true
     scanners = _Scanners(config, site, params.seed)
     landmarks = LandmarkMap(
         tuple(
@@ -255,7 +281,7 @@ def run_pallet(config: VehicleConfig, params: PalletRunParams) -> PalletResult:
     merged = merge_maps(vehicle_map, worker, MARKER, params.merge)
     if isinstance(merged, MergeRefusal):
         return _failure(f"maps not merged: {merged.reason}", params, started, **counts)
-    fitted, truth_frame = merged.worker_in_vehicle, cloud.t0_true
+    fitted, truth_frame = merged.worker_in_vehicle, worker_in_site
     merge_error = {
         "merge_error_m": math.dist(fitted[:2], truth_frame[:2]),
         "merge_error_deg": math.degrees(
