@@ -133,6 +133,8 @@ async def read_request(
 class OperatorPage:
     """The page and its two JSON documents, served by the daemon as a supervised service."""
 
+    max_body_bytes = 0  # GET and HEAD only: a request with a body is refused
+
     def __init__(
         self,
         status: StatusSource,
@@ -276,7 +278,7 @@ class OperatorPage:
 
     async def _read_and_answer(self, reader: asyncio.StreamReader) -> bytes:
         try:
-            event = await read_request(reader, RequestReader())
+            event = await read_request(reader, RequestReader(max_body_bytes=self.max_body_bytes))
         except HttpError as error:
             return error_response(error)
         if isinstance(event, ConnectionClosed):

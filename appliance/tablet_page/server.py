@@ -27,20 +27,12 @@ from importlib import resources
 from typing import Any, Protocol
 
 from appliance.logs import get_logger
-from appliance.operator_page.http import (
-    ConnectionClosed,
-    HttpError,
-    Request,
-    RequestReader,
-    error_response,
-    render_response,
-)
+from appliance.operator_page.http import HttpError, Request, error_response, render_response
 from appliance.operator_page.server import (
     JSON_TYPE,
     OperatorPage,
     host_header_name,
     json_bytes,
-    read_request,
 )
 from appliance.tablet_page.gate import Paired, Refusal, TabletGate
 
@@ -71,6 +63,8 @@ def load_tablet_page() -> bytes:
 class TabletPage(OperatorPage):
     """The tablet's page and API, served by the daemon as a supervised service."""
 
+    max_body_bytes = MAX_BODY_BYTES
+
     def __init__(
         self,
         gate: TabletGate,
@@ -98,15 +92,6 @@ class TabletPage(OperatorPage):
         self.actions = actions
         self.clock = clock
         self.host_names = {host.lower(), *(name.lower() for name in host_names)}
-
-    async def _read_and_answer(self, reader: Any) -> bytes:
-        try:
-            event = await read_request(reader, RequestReader(max_body_bytes=MAX_BODY_BYTES))
-        except HttpError as error:
-            return error_response(error)
-        if isinstance(event, ConnectionClosed):
-            return b""
-        return self.respond(event)
 
     def respond(self, request: Request) -> bytes:
         head_only = request.method == "HEAD"

@@ -21,6 +21,7 @@ import numpy as np
 
 from appliance.config import load_config
 from appliance.config.models import VehicleConfig
+from appliance.core import pallet_parts
 from appliance.guidance.pallet_approach import (
     PalletApproach,
     PalletApproachParams,
@@ -87,21 +88,8 @@ def vehicle_shape() -> VehicleShape:
 
 
 def approach_params() -> PalletApproachParams:
-    """As the caller builds them from the vehicle file."""
-    c = config()
-    return PalletApproachParams(
-        wheelbase_m=c.geometry.wheelbase_m,
-        max_steer_rad=math.radians(c.limits.max_steer_angle_deg),
-        max_steer_rate_rad_per_s=math.radians(c.limits.max_steer_rate_deg_per_s),
-        tips_forward_m=c.forks.tips_forward_m,
-        forks_offset_y_m=c.forks.offset_y_m,
-        final_gap_m=c.pallets.final_gap_m,
-        cruise_speed_mps=c.pallets.cruise_speed_mps,
-        final_speed_mps=c.pallets.final_speed_mps,
-        redetect_gate_m=c.pallets.redetect_gate_m,
-        max_lateral_error_m=c.pallets.max_lateral_error_m,
-        max_heading_error_rad=math.radians(c.pallets.max_heading_error_deg),
-    )
+    """As the `pallet` source builds them from the vehicle file."""
+    return pallet_parts.approach_params(config())
 
 
 def plan_params() -> PalletPlanParams:
