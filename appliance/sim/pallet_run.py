@@ -87,6 +87,10 @@ class PalletRunParams:
     control_hz: float = 50.0
     world_hz: float = 100.0
     timeout_s: float = 400.0
+    # A pallet found again too far off the line the vehicle stands on to go in: plan
+    # again from the detection (the paper: "re-plans the final straight approach"), at
+    # most this many times.
+    max_replans: int = 2
     # The forklift's own odometry: its speed off by a scale, its steering by a bias.
     speed_scale_sigma: float = 0.01
     steer_bias_sigma_rad: float = math.radians(0.2)
@@ -310,6 +314,9 @@ def run_pallet(config: VehicleConfig, params: PalletRunParams) -> PalletResult:
     if isinstance(plan, PlanRefusal):
         return _failure(f"no plan: {plan.reason}", params, started, **counts, **merge_error)
     controller = PalletApproach(plan, approach_params(config))
+    first_plan, replans = plan, 0
+    obstacles = site_obstacles(site, planning.clearance_m)
+    others = [m.pallet for m in merged.pallets if m is not chosen]
     pid = PidSpeedController()
     control_dt, world_dt = 1.0 / params.control_hz, 1.0 / params.world_hz
     next_control = t_s
@@ -349,10 +356,24 @@ def run_pallet(config: VehicleConfig, params: PalletRunParams) -> PalletResult:
             command = VehicleCommand(
                 MotionPattern.REAR_STEER, 0.0, order.steer_rad, throttle, brake, reverse
             )
+            standing = abs(state.speed_mps) < 1e-4
+            seen_again = controller.detected_pallet
             if (
-                order.phase in (PalletPhase.DONE, PalletPhase.REFUSED)
-                and abs(state.speed_mps) < 1e-4
+                order.phase is PalletPhase.REFUSED
+                and standing
+                and seen_again is not None
+                and replans < params.max_replans
+                and estimate.pose is not None
             ):
+                again = plan_pallet_approach(
+                    estimate.pose, PalletTarget(seen_again), [*others, seen_again], shape,
+                    planning, obstacles,
+                )  # fmt: skip
+                replans += 1  # tried: a refused plan is not tried again and again
+                if not isinstance(again, PlanRefusal):
+                    plan = again
+                    controller = PalletApproach(plan, approach_params(config))
+            elif order.phase in (PalletPhase.DONE, PalletPhase.REFUSED) and standing:
                 break
         state = step(state, command, world_dt, vehicle)
         t_s += world_dt
@@ -378,7 +399,7 @@ def run_pallet(config: VehicleConfig, params: PalletRunParams) -> PalletResult:
         wall_time_s=time.perf_counter() - started,
         worker_pallets=len(worker),
         vehicle_pallets=len(vehicle_map),
-        plan_length_m=plan.length_m,
+        plan_length_m=first_plan.length_m,
         face=plan.face.index,
         trial=params.trial,
         seed=params.seed,

@@ -58,7 +58,19 @@ CONFIG = load_config("forklift-sim")
 VEHICLE = VehicleParams.from_config(CONFIG)
 WHEELBASE_M = CONFIG.geometry.wheelbase_m
 CHARACTERISTIC_MPS = CONFIG.geometry.characteristic_speed_mps
-SITE = load_site("pallets")
+# The `pallets` site with the five posts these tests were written around (it has more
+# since, along the forklift's routes behind the pallets): the geometry of every figure
+# below, pairs, matches and refusals, is theirs.
+_FULL = load_site("pallets")
+_LATER_POSTS = ("landmark_6", "landmark_7", "landmark_8")
+SITE = Site(
+    _FULL.segments,
+    tuple(c for c in _FULL.circles if c.name not in _LATER_POSTS),
+    _FULL.movers,
+    _FULL.name,
+    _FULL.targets,
+    _FULL.pallets,
+)
 MOUNTS = {
     "left": mount_pose(CONFIG.geometry.scanner_left_mount),
     "right": mount_pose(CONFIG.geometry.scanner_right_mount),
