@@ -6,9 +6,10 @@ HTTP, as the page does), and raises the set speed until the vehicle drives; then
 releases it (an explicit ``held: false``) or stops beating (a frozen page, a dropped
 link). Measured: from the release's request leaving the client, or from the last beat's
 answer, to the first control output after it whose speed command to the PC104 is lower
-than while held (the hold-to-move stop, timestamped as the loop hands it to the sinks,
-i.e. on its way to the wire). The figure to compare with: one control cycle (release),
-one cycle plus the configured hold timeout (dropped link).
+than the one before (the hold-to-move stop begun, the command having been steady at the
+set speed; timestamped as the loop hands it to the sinks, on its way to the wire). The
+figure to compare with: one control cycle (release), one cycle plus the configured hold
+timeout (dropped link).
 
 Run: ``python -m benchmarks.bench_tablet [REPEATS]`` (20 of each by default).
 """
@@ -78,9 +79,11 @@ class Outputs:
     def __call__(self, output: CoreOutput) -> None:
         self.log.append((time.monotonic(), output.pc104.speed_mps, output.mode))
 
-    def first_slower_after(self, t_s: float, held_speed_mps: float) -> float | None:
-        for when, speed, _ in self.log:
-            if when >= t_s and speed < held_speed_mps - 1e-6:
+    def first_slower_after(self, t_s: float) -> float | None:
+        """The first output after ``t_s`` whose speed command is below the one before
+        it: the stop has begun (the set speed reached, the command was steady)."""
+        for (_, before, _), (when, speed, _) in zip(self.log, self.log[1:], strict=False):
+            if when >= t_s and speed < before - 1e-6:
                 return when
         return None
 
@@ -120,22 +123,21 @@ async def _measure(repeats: int) -> tuple[list[float], list[float]]:
                 daemon.core.request("speed_plus", daemon.clock())
                 await beat(True)
                 await asyncio.sleep(BEAT_S)
-            for _ in range(15):
+            for _ in range(30):  # 3 s: the command up at the set speed, steady
                 await beat(True)
                 await asyncio.sleep(BEAT_S)
-            held_speed = outputs.log[-1][1]
             if round_index % 2 == 0:
                 sent = time.monotonic()
                 await beat(False)
                 await asyncio.sleep(0.2)
-                stop = outputs.first_slower_after(sent, held_speed)
+                stop = outputs.first_slower_after(sent)
                 if stop is not None:
                     released.append(stop - sent)
             else:
                 await beat(True)
                 last_answer = time.monotonic()
                 await asyncio.sleep(config.tablet_page.hold_timeout_s + 0.3)
-                stop = outputs.first_slower_after(last_answer, held_speed)
+                stop = outputs.first_slower_after(last_answer)
                 if stop is not None:
                     dropped.append(stop - last_answer)
             # Stand still, released, before the next round (speed hold stays set).
