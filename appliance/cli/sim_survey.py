@@ -68,17 +68,12 @@ def survey(
 
     from appliance.config import ConfigError
     from appliance.mapping.cloud_file import write_ply
-    from appliance.mapping.object_file import (
-        DEFAULT_SIGMA_XY_M,
-        DEFAULT_SIGMA_YAW_DEG,
-        dump_object_map,
-    )
-    from appliance.mapping.pallets import Pallet, PalletKind, PalletMap
+    from appliance.mapping.object_file import dump_object_map
     from appliance.sim.site_file import load_site
     from appliance.sim.terminal_errors import CONSUMER, IDEAL, WORSE
     from appliance.sim.worker_route import walk_around
+    from appliance.sim.worker_terminal import object_pallet_map, survey_objects
     from appliance.sim.worker_terminal import survey as run_survey
-    from appliance.sim.worker_terminal import survey_objects
     from drivers.geometry import Pose2D
 
     try:
@@ -94,20 +89,9 @@ def survey(
     viewpoints = walk_around(site)
     if objects:
         found = survey_objects(site, marker, errors, rng, viewpoints=viewpoints)
-        pallets = []
-        # What a consumer terminal claims for its objects (the object file's defaults),
-        # whatever this simulated one actually got wrong.
-        sigma_xy, sigma_yaw = DEFAULT_SIGMA_XY_M, math.radians(DEFAULT_SIGMA_YAW_DEG)
-        for item in found.objects:
-            dimensions = f"{round(item.length_m * 1000)}x{round(item.width_m * 1000)}"
-            try:
-                kind = PalletKind(dimensions)
-            except ValueError:
-                continue  # not a standard pallet: the terminal lists only those
-            covariance = np.diag([sigma_xy**2, sigma_xy**2, sigma_yaw**2])
-            pallets.append(Pallet(item.x_m, item.y_m, item.yaw_rad, covariance, kind, item.name))
-        data = dump_object_map(PalletMap(tuple(pallets), "worker"))
-        t0_true, count = found.t0_true, len(pallets)
+        listed = object_pallet_map(found.objects)
+        data = dump_object_map(listed)
+        t0_true, count = found.t0_true, len(listed)
     else:
         cloud = run_survey(site, marker, viewpoints, rng=rng, errors=errors)
         data = write_ply(

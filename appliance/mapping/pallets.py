@@ -43,6 +43,12 @@ class PalletKind(StrEnum):
     def width_m(self) -> float:
         return int(self.value.split("x")[1]) / 1000.0
 
+    @classmethod
+    def of_size(cls, length_m: float, width_m: float) -> PalletKind | None:
+        """The standard pallet of this footprint (to the millimetre), or None."""
+        dimensions = f"{round(length_m * 1000)}x{round(width_m * 1000)}"
+        return next((kind for kind in cls if kind.value == dimensions), None)
+
     @property
     def symmetry_rad(self) -> float:
         """The turn that maps the footprint onto itself."""

@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -39,7 +38,6 @@ from appliance.localization.launcher_map import CylinderLandmark
 from appliance.localization.localizer_params import ScannerSetup
 from appliance.mapping.cloud_pallets import detect_pallets
 from appliance.mapping.merge import MergeParams, MergeRefusal, merge_maps
-from appliance.mapping.object_file import DEFAULT_SIGMA_XY_M, DEFAULT_SIGMA_YAW_DEG
 from appliance.mapping.pallet_fusion import fuse_pallets
 from appliance.mapping.pallets import Pallet, PalletKind, PalletMap
 from appliance.mapping.scan_pallets import detect_scan_pallets
@@ -51,7 +49,7 @@ from appliance.sim.terminal_errors import CONSUMER, WORSE
 from appliance.sim.twins.pc104_core import PidSpeedController
 from appliance.sim.vehicle import VehicleCommand, VehicleParams, VehicleState, step
 from appliance.sim.worker_route import walk_around
-from appliance.sim.worker_terminal import WorkerObject, survey, survey_objects
+from appliance.sim.worker_terminal import object_pallet_map, survey, survey_objects
 from drivers.geometry import Pose2D
 from drivers.lms111.mounted import DEVICE_FORWARD_RAD, mount_pose
 from drivers.pc104.messages import MotionPattern
@@ -143,20 +141,6 @@ def _failure(
     )  # fmt: skip
 
 
-def _object_map(objects: Sequence[WorkerObject]) -> PalletMap:
-    """The terminal's own object list: each a standard pallet with the sigmas a consumer
-    terminal claims (the object file's defaults)."""
-    sigma_yaw = math.radians(DEFAULT_SIGMA_YAW_DEG)
-    covariance = np.diag([DEFAULT_SIGMA_XY_M**2, DEFAULT_SIGMA_XY_M**2, sigma_yaw**2])
-    pallets = []
-    for item in objects:
-        dimensions = f"{round(item.length_m * 1000)}x{round(item.width_m * 1000)}"
-        if dimensions in {kind.value for kind in PalletKind}:
-            kind = PalletKind(dimensions)
-            pallets.append(Pallet(item.x_m, item.y_m, item.yaw_rad, covariance, kind, item.name))
-    return PalletMap(tuple(pallets), "worker")
-
-
 def site_obstacles(site: Site, clearance_m: float) -> tuple[Obstacle, ...]:
     """The yard's walls and the posts, which the merged map (pallets only) does not hold."""
     walls = tuple(
@@ -171,8 +155,11 @@ def site_obstacles(site: Site, clearance_m: float) -> tuple[Obstacle, ...]:
 
 
 def true_pallet(site: Site, name: str) -> Pallet:
+    """The site's pallet ``name`` exactly, as a standard pallet."""
     solid = next(p for p in site.pallets if p.name == name)
-    kind = PalletKind.EUR if math.isclose(solid.length_m, 1.2) else PalletKind.JIS
+    kind = PalletKind.of_size(solid.length_m, solid.width_m)
+    if kind is None:
+        raise ValueError(f"{name} is {solid.length_m} x {solid.width_m} m: no standard pallet")
     return Pallet(*solid.pose, np.zeros((3, 3)), kind, name)
 
 
@@ -235,7 +222,7 @@ def run_pallet(config: VehicleConfig, params: PalletRunParams) -> PalletResult:
     errors = WORSE if trial.worse_worker_map else CONSUMER
     if params.worker_form == "objects":
         listed = survey_objects(site, MARKER, errors, rng, viewpoints=walk_around(site))
-        worker, worker_in_site = _object_map(listed.objects), listed.t0_true
+        worker, worker_in_site = object_pallet_map(listed.objects), listed.t0_true
     else:
         cloud = survey(site, MARKER, walk_around(site), rng=rng, errors=errors)
         worker = detect_pallets(cloud.xyz_m, cloud.origins_m, frame="worker").pallet_map

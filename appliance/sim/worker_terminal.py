@@ -36,7 +36,8 @@ from typing import NamedTuple
 import numpy as np
 from numpy.typing import NDArray
 
-from appliance.mapping.pallets import inverse_pose
+from appliance.mapping.object_file import DEFAULT_SIGMA_XY_M, DEFAULT_SIGMA_YAW_DEG
+from appliance.mapping.pallets import Pallet, PalletKind, PalletMap, inverse_pose
 from appliance.sim.raycast3d import (
     DEFAULT_WORLD,
     NO_HIT,
@@ -333,3 +334,17 @@ __all__ = [  # the error presets re-exported: a survey's callers need both
     "survey_objects",
     "transform_points",
 ]
+
+
+def object_pallet_map(objects: Sequence[WorkerObject]) -> PalletMap:
+    """The terminal's object list as a pallet map: each standard pallet (others are not
+    listed by the terminal) with the sigmas a consumer terminal claims (the object
+    file's defaults), whatever this simulated one actually got wrong."""
+    sigma_yaw = math.radians(DEFAULT_SIGMA_YAW_DEG)
+    covariance = np.diag([DEFAULT_SIGMA_XY_M**2, DEFAULT_SIGMA_XY_M**2, sigma_yaw**2])
+    pallets = []
+    for item in objects:
+        kind = PalletKind.of_size(item.length_m, item.width_m)
+        if kind is not None:
+            pallets.append(Pallet(item.x_m, item.y_m, item.yaw_rad, covariance, kind, item.name))
+    return PalletMap(tuple(pallets), "worker")

@@ -34,10 +34,8 @@ from appliance.guidance.pallet_geometry import (
     ScannerField,
     VehicleShape,
     box_corners,
-    disc_obstacle,
     face_in_view,
     nearest_entry_face,
-    wall_obstacle,
 )
 from appliance.guidance.pallet_plan import (
     PalletPlan,
@@ -47,7 +45,8 @@ from appliance.guidance.pallet_plan import (
     plan_pallet_approach,
 )
 from appliance.mapping.merge import reference_area
-from appliance.mapping.pallets import Pallet, PalletKind, inverse_pose
+from appliance.mapping.pallets import Pallet, inverse_pose
+from appliance.sim import pallet_run
 from appliance.sim.site_file import load_site
 from appliance.sim.twins.pc104_core import PidSpeedController
 from appliance.sim.vehicle import VehicleCommand, VehicleParams, VehicleState, step
@@ -98,13 +97,9 @@ def plan_params() -> PalletPlanParams:
 
 @cache
 def true_pallets() -> tuple[Pallet, ...]:
-    """The site's pallets, exactly (EUR where the footprint is 1.2 x 0.8)."""
-    pallets = []
-    for solid in load_site("pallets").pallets:
-        kind = PalletKind.EUR if solid.length_m == 1.2 else PalletKind.JIS
-        pose = solid.pose
-        pallets.append(Pallet(pose.x_m, pose.y_m, pose.yaw_rad, np.zeros((3, 3)), kind, solid.name))
-    return tuple(pallets)
+    """The site's pallets, exactly."""
+    site = load_site("pallets")
+    return tuple(pallet_run.true_pallet(site, solid.name) for solid in site.pallets)
 
 
 def true_pallet(name: str) -> Pallet:
@@ -114,17 +109,7 @@ def true_pallet(name: str) -> Pallet:
 @cache
 def static_obstacles() -> tuple[Obstacle, ...]:
     """The yard's walls and the posts, grown by the plan's clearance."""
-    site = load_site("pallets")
-    clearance = plan_params().clearance_m
-    walls = tuple(
-        wall_obstacle(s.x0_m, s.y0_m, s.x1_m, s.y1_m, clearance, s.name)
-        for s in site.segments
-        if s.name.startswith("yard")
-    )
-    posts = tuple(
-        disc_obstacle(c.cx_m, c.cy_m, c.radius_m, clearance, c.name) for c in site.circles
-    )
-    return walls + posts
+    return pallet_run.site_obstacles(load_site("pallets"), plan_params().clearance_m)
 
 
 def worker_map(

@@ -41,3 +41,12 @@ def test_a_bad_covariance_or_provenance_is_refused_with_its_path(
     with pytest.raises(ObjectFileError, match=words) as caught:
         parse_object_map(_file(**entry))
     assert "objects[0]" in str(caught.value)
+
+
+def test_a_footprint_names_its_standard_pallet_to_the_millimetre() -> None:
+    from appliance.mapping.pallets import PalletKind
+
+    assert PalletKind.of_size(1.2, 0.8) is PalletKind.EUR
+    assert PalletKind.of_size(1.1004, 1.0996) is PalletKind.JIS
+    assert PalletKind.of_size(0.8, 1.2) is None  # the length is the longer side
+    assert PalletKind.of_size(1.0, 1.2) is None
