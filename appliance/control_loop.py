@@ -54,10 +54,12 @@ class TopicInputs:
         topics: TopicRegistry,
         link_counts: Callable[[], LinkCounts] | None = None,
         service_faults: Callable[[], dict[str, str]] | None = None,
+        jobs_done: Callable[[], tuple[float, ...]] | None = None,
     ) -> None:
         self.topics = topics
         self.link_counts = link_counts
         self.service_faults = service_faults
+        self.jobs_done = jobs_done
 
     def _latest(self, name: str) -> Any:
         sample = self.topics.get(name).latest()
@@ -86,6 +88,7 @@ class TopicInputs:
             system=self._latest(SYSTEM_HEALTH_TOPIC) if SYSTEM_HEALTH_TOPIC in ages else None,
             # Only a daemon serving the tablet page has the topic (see GNSS above).
             tablet=self._latest(TABLET_HOLD_TOPIC) if TABLET_HOLD_TOPIC in ages else None,
+            jobs_done=self.jobs_done() if self.jobs_done is not None else (),
         )
 
 

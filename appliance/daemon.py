@@ -34,7 +34,9 @@ from appliance.control_loop import ControlLoop, OperatorWatch, TopicInputs
 from appliance.control_socket import ControlServer
 from appliance.core.autopilot import AutopilotSource
 from appliance.core.core import ControlCore
+from appliance.core.jobs import ThreadJobs
 from appliance.core.output import CoreOutput
+from appliance.core.pallet_autopilot import PalletAutopilot
 from appliance.daemon_status import service_summary, status_document, status_line
 from appliance.live_view import LiveView
 from appliance.logs import get_logger
@@ -127,10 +129,18 @@ class Daemon:
             None if calibration_model is None else Calibration.from_file(calibration_model)
         )
         self.core = ControlCore(config, calibration, problem, autopilot=autopilot)
+        # A source with work longer than a cycle (the pallet source's merge and plans)
+        # gets a worker thread; when the work is done is read into each cycle's inputs.
+        self.jobs: ThreadJobs | None = None
+        if isinstance(self.core.autopilot, PalletAutopilot):
+            self.jobs = self.core.autopilot.jobs = ThreadJobs()
         self.control = ControlLoop(
             self.core,
             TopicInputs(
-                self.io.topics, lambda: pc104_link_counts(self.io), self._critical_service_faults
+                self.io.topics,
+                lambda: pc104_link_counts(self.io),
+                self._critical_service_faults,
+                None if self.jobs is None else self.jobs.done,
             ),
             config.rates.control_hz,
             clock=clock,
@@ -195,7 +205,7 @@ class Daemon:
                 self.clock,
                 self.control.ticker.wake_early,
                 self._tablet_state,
-                getattr(self.core.autopilot, "select_pallet", None),
+                self.core.select_pallet,
             )
             self.io.topics.register(TABLET_TOPIC, self.tablet.topic)
         self.control_server = ControlServer(
@@ -340,6 +350,8 @@ class Daemon:
             finally:
                 self.io.close()
                 self.loop_monitor.uninstall()
+                if self.jobs is not None:
+                    self.jobs.close()
             if handle_signals:
                 for signum in (signal.SIGTERM, signal.SIGINT):
                     loop.remove_signal_handler(signum)

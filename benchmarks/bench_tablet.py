@@ -52,7 +52,11 @@ def _config() -> VehicleConfig:
         }
     )
     tablet = config.tablet_page.model_copy(update={"enabled": True, "port": 0})
-    return config.model_copy(update={"devices": devices, "tablet_page": tablet})
+    # The release's path to the wire, on a source that is always ready to move.
+    engagement = config.engagement.model_copy(update={"autopilot_source": "hold_straight"})
+    return config.model_copy(
+        update={"devices": devices, "tablet_page": tablet, "engagement": engagement}
+    )
 
 
 async def _post(port: int, path: str, body: dict[str, Any], token: str | None) -> dict[str, Any]:

@@ -18,7 +18,6 @@ from __future__ import annotations
 import json
 import math
 from dataclasses import replace
-from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import click
@@ -29,8 +28,6 @@ if TYPE_CHECKING:
     from appliance.mapping.cloud_pallets import CloudPallets
     from appliance.mapping.merge import MergeResult
     from appliance.mapping.pallets import Pallet, PalletMap
-
-MAX_MAP_BYTES = 2 * 1024**3  # a 2 GiB cloud is ~100 million float32 points: enough
 
 
 def _t0(text: str) -> tuple[float, float, float]:
@@ -49,33 +46,14 @@ def read_map(
 ) -> tuple[PalletMap, CloudPallets | None]:
     """The pallet map of a file (an object list, or a cloud's detected pallets), or exit 2
     naming what is wrong with it."""
-    from appliance.mapping.cloud_file import CloudFileError, parse_ply
-    from appliance.mapping.cloud_pallets import detect_pallets
-    from appliance.mapping.object_file import ObjectFileError, parse_object_map
+    from appliance.mapping.map_file import MapFileError, read_pallet_map
 
-    file = Path(path)
     try:
-        if file.stat().st_size > MAX_MAP_BYTES:
-            bad_input(f"{path}: larger than {MAX_MAP_BYTES // 1024**3} GiB")
-        data = file.read_bytes()
-    except OSError as exc:
-        bad_input(f"{path}: cannot read it: {exc.strerror or exc}")
-    if data[:4] == b"ply\n" or data[:5] == b"ply\r\n":
-        try:
-            cloud = parse_ply(data, drop_non_finite=True)
-        except CloudFileError as exc:
-            bad_input(f"{path}: {exc}")
-        if cloud.dropped_non_finite:
-            details.append(f"{path}: {cloud.dropped_non_finite} points not finite, left out")
-        origins = list(cloud.origins_m) or [(0.0, 0.0, origin_height_m)]
-        found = detect_pallets(cloud.xyz_m, origins, frame=frame)
-        pallet_map = replace(found.pallet_map, source=path)
-        return pallet_map, found
-    try:
-        pallet_map = parse_object_map(data, source=path)
-    except ObjectFileError as exc:
-        bad_input(f"{path}: {exc}")
-    return replace(pallet_map, frame=frame), None
+        read = read_pallet_map(path, frame, origin_height_m)
+    except MapFileError as exc:
+        bad_input(str(exc))
+    details.extend(read.notes)
+    return read.pallet_map, read.cloud
 
 
 def _pallet_json(pallet: Pallet) -> dict[str, Any]:

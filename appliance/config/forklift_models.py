@@ -38,8 +38,59 @@ class Forks(_Model):
         return self.heel_forward_m + self.length_m
 
 
+class SiteLandmark(_Model):
+    """A reflector post of the site (a vertical cylinder): the forklift localizes on
+    these (Kinouchi et al. presume a known pose; the kit gets it from the posts)."""
+
+    name: str = Field(min_length=1, max_length=64)
+    x_m: float = Field(ge=-1e5, le=1e5)
+    y_m: float = Field(ge=-1e5, le=1e5)
+    radius_m: float = Field(gt=0.01, le=2.0)
+
+
+class SiteWall(_Model):
+    """A wall or rack face the planner keeps clear of (a segment in the site frame): the
+    merged map holds pallets only, so what else stands in the storage area is listed."""
+
+    name: str = Field("wall", min_length=1, max_length=64)
+    x0_m: float = Field(ge=-1e5, le=1e5)
+    y0_m: float = Field(ge=-1e5, le=1e5)
+    x1_m: float = Field(ge=-1e5, le=1e5)
+    y1_m: float = Field(ge=-1e5, le=1e5)
+
+
+class SiteColumn(_Model):
+    """A column or post that is no landmark (another radius, no reflector): kept clear of."""
+
+    name: str = Field("column", min_length=1, max_length=64)
+    x_m: float = Field(ge=-1e5, le=1e5)
+    y_m: float = Field(ge=-1e5, le=1e5)
+    radius_m: float = Field(gt=0.0, le=10.0)
+
+
+class WorkerMarker(_Model):
+    """The floor marker where the worker's terminal starts its map: the worker map's
+    origin in the site frame (the paper's initial T0; the merge fits the rest)."""
+
+    x_m: float = Field(0.0, ge=-1e5, le=1e5)
+    y_m: float = Field(0.0, ge=-1e5, le=1e5)
+    yaw_deg: float = Field(0.0, ge=-360.0, le=360.0)
+
+
 class PalletGuidanceSettings(_Model):
     """How the forklift approaches a pallet it is sent to (the `pallet` autopilot source)."""
+
+    # The worker's map (a PLY point cloud or a JSON object list: `dbw merge`'s forms),
+    # merged with the vehicle's own pallets once it stands localized; "builtin:pallets"
+    # is the simulated terminal's survey of the simulated `pallets` site.
+    worker_map: str = Field("", max_length=4096)
+    worker_marker: WorkerMarker = WorkerMarker()
+    # The merge's weight of posture against position (eq. 1's w); unset: a consumer
+    # terminal's (20 mm / 1 deg)^2, as `dbw merge`.
+    merge_w_m2_per_rad2: float | None = Field(None, gt=0.0, le=1e6)
+    landmarks: tuple[SiteLandmark, ...] = ()
+    walls: tuple[SiteWall, ...] = ()
+    columns: tuple[SiteColumn, ...] = ()
 
     # The pallet footprints the vehicle's detections are matched against.
     kinds: tuple[PalletKind, ...] = (PalletKind.EUR, PalletKind.JIS)
@@ -67,6 +118,16 @@ class PalletGuidanceSettings(_Model):
             )
         if not self.kinds:
             raise ValueError("kinds must name at least one pallet footprint")
+        names = [landmark.name for landmark in self.landmarks]
+        doubled = sorted({name for name in names if names.count(name) > 1})
+        if doubled:
+            raise ValueError(f"landmarks named twice: {', '.join(doubled)}")
+        radii = {landmark.radius_m for landmark in self.landmarks}
+        if len(radii) > 1:
+            # The localizer's extraction tests every arc against one radius.
+            raise ValueError(
+                f"landmarks must all have one radius (got {', '.join(map(str, sorted(radii)))} m)"
+            )
         return self
 
 

@@ -677,6 +677,18 @@ class VehicleConfig(_Model):
                     'engagement.autopilot_source = "route" needs the local frame\'s origin: '
                     "set [positioning.origin] (lat_deg, lon_deg) near the routes"
                 )
+        if engagement.autopilot_source == "pallet":
+            problems = []
+            if self.kind is not VehicleKind.FORKLIFT:
+                problems.append(f'kind = "forklift" (not "{self.kind}")')
+            if not self.pallets.landmarks:
+                problems.append("[[pallets.landmarks]]: the posts the forklift localizes on")
+            if not self.pallets.worker_map:
+                problems.append("pallets.worker_map: the worker's map to merge")
+            if problems:
+                raise ValueError(
+                    'engagement.autopilot_source = "pallet" needs ' + "; ".join(problems)
+                )
         # Compared with the default, not "was it set": a config written back out (the sim
         # child's copy) carries the default CAN section and must load again.
         if self.speed_path == "pedals" and self.devices.can != CanEndpoint():

@@ -16,6 +16,7 @@ from dataclasses import dataclass
 from appliance.config import parts
 from appliance.config.calibration import Calibration
 from appliance.config.models import VehicleConfig, VehicleKind
+from appliance.core.pallet_autopilot import PalletAutopilot
 from appliance.core.route_autopilot import RouteAutopilot
 from appliance.core.wish import AutopilotSource, AutopilotWish, Observation
 from appliance.guidance.dock_source import DockSource
@@ -113,6 +114,12 @@ def _route_source(config: VehicleConfig, calibration: Calibration | None) -> Aut
     return RouteAutopilot(config, schedule=schedule)
 
 
+def _pallet_source(config: VehicleConfig, calibration: Calibration | None) -> AutopilotSource:
+    if config.kind is not VehicleKind.FORKLIFT:
+        raise ValueError(f"autopilot source 'pallet' needs a forklift, not {config.kind}")
+    return PalletAutopilot(config, calibration)
+
+
 SourceFactory = Callable[[VehicleConfig, "Calibration | None"], AutopilotSource]
 
 AUTOPILOT_SOURCES: dict[str, SourceFactory] = {
@@ -120,6 +127,7 @@ AUTOPILOT_SOURCES: dict[str, SourceFactory] = {
     "weave": lambda _config, _calibration: Weave(),
     "dock": _dock_source,
     "route": _route_source,
+    "pallet": _pallet_source,
 }
 
 
@@ -151,6 +159,7 @@ __all__ = [
     "DockAutopilot",
     "HoldStraight",
     "Observation",
+    "PalletAutopilot",
     "RouteAutopilot",
     "Weave",
     "WeaveParams",

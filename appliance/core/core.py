@@ -111,7 +111,7 @@ _NOT_READY = EngageConditions(
 
 
 SYSTEM_HEALTH_INPUT = "system.health"
-# (kind "request" or "select_route", name, now_s or None, accepted, message)
+# (kind "request", "select_route" or "select_pallet", name, now_s or None, accepted, message)
 RequestListener = Callable[[str, str, float | None, bool, str], None]
 
 
@@ -358,6 +358,26 @@ class ControlCore:
         self._note("route_selected" if accepted else "route_refused", route=name, message=message)
         return bool(accepted), str(message)
 
+    def select_pallet(self, name: str) -> tuple[bool, str]:
+        """The tablet's "Select the object": the pallet the `pallet` source goes to.
+        Refused while under automatic control, and by any other source. Told to the
+        request listeners, so replay selects it at the same place."""
+        accepted, message = self._select_pallet(name)
+        for listener in self.request_listeners:
+            listener("select_pallet", name, None, accepted, message)
+        return accepted, message
+
+    def _select_pallet(self, name: str) -> tuple[bool, str]:
+        select = getattr(self.autopilot, "select_pallet", None)
+        if select is None:
+            return False, f"the autopilot source is {self.autopilot.name!r}, not 'pallet'"
+        if self.state.mode in AUTOMATIC_MODES:
+            return False, f"cannot change the pallet in {self.state.mode}: let go first"
+        accepted, message = select(name)
+        event = "pallet_selected" if accepted else "pallet_refused"
+        self._note(event, pallet=name, message=message)
+        return bool(accepted), str(message)
+
     def maneuver_request(self, action: str, step: str, now_s: float) -> tuple[bool, str]:
         """`dbw calibrate STEP` starts (``start``) or ends (``stop``) the tap on the cycles.
         The tap only reads: the mode machine and the safety layer stay as they are. The
@@ -517,6 +537,7 @@ class ControlCore:
             engaged,
             gnss=inputs.gnss,
             gnss_seq=inputs.gnss_seq,
+            jobs_done=inputs.jobs_done,
         )
         try:
             return self.autopilot.update(observation)

@@ -65,3 +65,6 @@ class ControlInputs:
     system: SystemHealth | None = None
     # The tablet page's hold (a forklift guided from a tablet), where the daemon serves it.
     tablet: TabletHold | None = None
+    # The keys of the source's background jobs that have finished (`appliance.core.jobs`):
+    # when a plan became available is an input, so replay takes it at the same cycle.
+    jobs_done: tuple[float, ...] = ()

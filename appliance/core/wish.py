@@ -31,6 +31,8 @@ class Observation:
     # each new epoch once).
     gnss: GnssPose | GnssNoFix | None = None
     gnss_seq: int | None = None
+    # The source's background jobs that have finished (`appliance.core.jobs`).
+    jobs_done: tuple[float, ...] = ()
 
 
 @dataclass(frozen=True)

@@ -97,6 +97,10 @@ class PalletApproach:
     def reset(self) -> None:
         self.phase = PalletPhase.TO_VIEW
         self.refused = ""
+        # Refused at the view pose with the pallet seen too far off the line: a plan
+        # from the detection may get there (one refused at the pallet cannot: the
+        # planner drives forward only).
+        self.plan_again = False
         self._segment = 0
         self._steer_rad = 0.0
         self._stopping = False
@@ -108,6 +112,14 @@ class PalletApproach:
         self._travelled_m = 0.0  # by the estimate, from the view pose on
         self._last_pose: Pose2D | None = None
         self._reference: LateralReference | None = None
+
+    def resume(self, t_s: float) -> None:
+        """Going on after a pause (hold-to-move let go, the vehicle standing): the
+        clocks that judge waiting start again, the plan and what was seen are kept.
+        A pause is the worker's choice, not the pallet gone missing."""
+        if self.phase is PalletPhase.REDETECT:
+            self._redetect_since_s = t_s
+        self._lost_since_s = None
 
     @property
     def detected_pallet(self) -> Pallet | None:
@@ -306,6 +318,7 @@ class PalletApproach:
         tips_ahead_m = p.tips_forward_m - self.plan.guide_forward_m
         settle_at = -(p.final_gap_m + p.settle_m) - tips_ahead_m
         room = settle_at - errors.guide_along_m
+        self.plan_again = True  # what follows refuses only for a new plan's sake
         if room < p.min_correction_m:
             return self._refuse(
                 f"too near the pallet to line up ({room:.2f} m of room): "
@@ -322,6 +335,7 @@ class PalletApproach:
                 "on: plan again from the detection"
             )
         self._reference = reference
+        self.plan_again = False
         self.phase = PalletPhase.FINAL
         return self._final(pose, 0.0, False, None)
 

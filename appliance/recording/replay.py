@@ -213,6 +213,8 @@ class Replayer:
             return  # refused by the socket's parser: it never reached the core
         if kind == "select_route":
             accepted, text = self.core.select_route(name)
+        elif kind == "select_pallet":
+            accepted, text = self.core.select_pallet(name)
         elif kind == "maneuver":
             action, _, step = name.partition(":")
             now_s = decode(data.get("now_s"), float)

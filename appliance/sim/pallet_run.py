@@ -22,8 +22,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from appliance.config.models import VehicleConfig
-from appliance.core.pallet_parts import approach_params, plan_params, vehicle_shape
-from appliance.guidance.pallet_approach import PalletApproach, PalletPhase
+from appliance.core.jobs import InlineJobs
+from appliance.core.pallet_autopilot import PalletAutopilot
+from appliance.core.wish import AutopilotWish, Observation
+from appliance.guidance.pallet_approach import PalletPhase
 from appliance.guidance.pallet_final import face_errors
 from appliance.guidance.pallet_geometry import (
     Obstacle,
@@ -31,15 +33,11 @@ from appliance.guidance.pallet_geometry import (
     nearest_entry_face,
     wall_obstacle,
 )
-from appliance.guidance.pallet_plan import PalletTarget, PlanRefusal, plan_pallet_approach
-from appliance.localization.landmark_initial import LandmarkMap
-from appliance.localization.landmark_localizer import LandmarkLocalizer, LandmarkStatus
-from appliance.localization.launcher_map import CylinderLandmark
+from appliance.guidance.pallet_plan import PalletPlan
 from appliance.localization.localizer_params import ScannerSetup
 from appliance.mapping.cloud_pallets import detect_pallets
-from appliance.mapping.merge import MergeParams, MergeRefusal, merge_maps
-from appliance.mapping.pallet_fusion import fuse_pallets
-from appliance.mapping.pallets import Pallet, PalletKind, PalletMap
+from appliance.mapping.merge import MergeParams
+from appliance.mapping.pallets import Pallet, PalletKind
 from appliance.mapping.scan_pallets import detect_scan_pallets
 from appliance.sim.scanner_errors import ScannerErrors, draw_scanner_errors, noise_seed
 from appliance.sim.scanner_model import RayCache, beam_angles_rad, render_scan
@@ -51,10 +49,13 @@ from appliance.sim.vehicle import VehicleCommand, VehicleParams, VehicleState, s
 from appliance.sim.worker_route import walk_around
 from appliance.sim.worker_terminal import object_pallet_map, survey, survey_objects
 from drivers.geometry import Pose2D
-from drivers.lms111.mounted import DEVICE_FORWARD_RAD, mount_pose
+from drivers.lms111.mounted import DEVICE_FORWARD_RAD, MountedScan, mount_pose
+from drivers.lms111.scan import scan_from_ranges
 from drivers.pc104.messages import MotionPattern
 
 MARKER = Pose2D(0.0, 0.0, 0.0)  # the floor marker: the worker map's origin, surveyed
+# The source merges again every few seconds while the maps do not fit: a trial gives up.
+MERGE_GIVE_UP_S = 15.0
 SCANNERS = ("left", "right")
 
 
@@ -210,7 +211,21 @@ class _Scanners:
         return detect_scan_pallets(corrected, self.angles, pose.compose(setup.mount)).pallets
 
 
+def _mounted(scanners: _Scanners, name: str, ranges: np.ndarray, t_s: float) -> MountedScan:
+    """A rendered scan as the daemon's driver hands it over (millimetre telegram)."""
+    scan = scan_from_ranges(
+        ranges,
+        start_angle_deg=math.degrees(scanners.angles[0] + DEVICE_FORWARD_RAD),
+        angular_step_deg=math.degrees(scanners.step_rad),
+    )
+    return MountedScan(scan, name, scanners.mounts[name], t_s, round(t_s * 1e6))
+
+
 def run_pallet(config: VehicleConfig, params: PalletRunParams) -> PalletResult:
+    """The trial on the `pallet` autopilot source itself (`PalletAutopilot`, its jobs
+    inline): the worker's map handed to it, the worker selecting the target once the
+    maps are merged and holding the button from when the source is ready, the speed
+    through the PC104 twin's PID and the steering straight to the wheels."""
     started = time.perf_counter()
     if params.worker_form not in ("cloud", "objects"):
         raise ValueError(f"worker_form must be 'cloud' or 'objects', not {params.worker_form!r}")
@@ -228,164 +243,139 @@ def run_pallet(config: VehicleConfig, params: PalletRunParams) -> PalletResult:
         worker = detect_pallets(cloud.xyz_m, cloud.origins_m, frame="worker").pallet_map
         worker_in_site = cloud.t0_true
     scanners = _Scanners(config, site, params.seed)
-    landmarks = LandmarkMap(
-        tuple(
-            CylinderLandmark(c.name, c.cx_m, c.cy_m, c.radius_m)
-            for c in site.circles
-            if c.name.startswith("landmark")
-        )
+    marker = config.pallets.worker_marker.model_copy(
+        update={"x_m": MARKER.x_m, "y_m": MARKER.y_m, "yaw_deg": math.degrees(MARKER.yaw_rad)}
     )
-    localizer = LandmarkLocalizer(scanners.setups, landmarks)
+    run_config = config.model_copy(
+        update={"pallets": config.pallets.model_copy(update={"worker_marker": marker})}
+    )
+    source = PalletAutopilot(run_config, jobs=InlineJobs(), scanners=scanners.setups, worker=worker)
+    source.merge_params = params.merge
+    jobs = source.jobs
     vehicle = VehicleParams.from_config(config)
     state = VehicleState(x_m=trial.start.x_m, y_m=trial.start.y_m, yaw_rad=trial.start.yaw_rad)
     speed_scale = 1.0 + float(rng.normal(0.0, params.speed_scale_sigma))
     steer_bias = float(rng.normal(0.0, params.steer_bias_sigma_rad))
-    wheelbase, v_char = config.geometry.wheelbase_m, config.geometry.characteristic_speed_mps
     next_scan = {"left": 0.0, "right": scanners.period_s / 2.0}
-    latest: dict[str, np.ndarray] = {}
-    t_s = 0.0
-
-    def truth_of(s: VehicleState) -> Pose2D:
-        return Pose2D(s.x_m, s.y_m, s.yaw_rad)
-
-    def scan_due(now_s: float) -> list[str]:
-        due = []
-        for name in SCANNERS:
-            if now_s + 1e-9 >= next_scan[name]:
-                latest[name] = scanners.render(name, now_s, truth_of(state))
-                localizer.update(name, latest[name], scanners.angles, now_s, now_s)
-                next_scan[name] += scanners.period_s
-                due.append(name)
-        return due
-
-    # Standing at the start: the first pose from the posts, and the vehicle's own map.
-    while t_s < 3.0:
-        localizer.odometry(t_s, 0.0, steer_bias, wheelbase, characteristic_speed_mps=v_char)
-        scan_due(t_s)
-        t_s += 1.0 / params.world_hz
-    estimate = localizer.estimate(t_s)
-    if estimate.status is not LandmarkStatus.OK or estimate.pose is None:
-        return _failure(f"no first pose: {estimate.reason}", params, started)
-    seen = [p for name in SCANNERS for p in scanners.pallets(name, latest[name], estimate.pose)]
-    vehicle_map = PalletMap(fuse_pallets(seen, 0.3, math.radians(10.0)), "vehicle")
-    counts = {"worker_pallets": len(worker), "vehicle_pallets": len(vehicle_map)}
-    merged = merge_maps(vehicle_map, worker, MARKER, params.merge)
-    if isinstance(merged, MergeRefusal):
-        return _failure(f"maps not merged: {merged.reason}", params, started, **counts)
-    fitted, truth_frame = merged.worker_in_vehicle, worker_in_site
-    merge_error = {
-        "merge_error_m": math.dist(fitted[:2], truth_frame[:2]),
-        "merge_error_deg": math.degrees(
-            abs(math.remainder(fitted.yaw_rad - truth_frame.yaw_rad, math.tau))
-        ),
-    }
-    # The worker taps the target: the merged pallet where the true one stands.
-    chosen = min(
-        merged.pallets,
-        key=lambda m: math.hypot(m.pallet.x_m - truth_target.x_m, m.pallet.y_m - truth_target.y_m),
-    )
-    if math.hypot(chosen.pallet.x_m - truth_target.x_m, chosen.pallet.y_m - truth_target.y_m) > 0.5:
-        return _failure(
-            "the target is not in the merged map", params, started, **counts, **merge_error
-        )
-    shape = vehicle_shape(config)
-    planning = plan_params(config)
-    plan = plan_pallet_approach(
-        estimate.pose,
-        PalletTarget.from_merged(chosen),
-        [m.pallet for m in merged.pallets],
-        shape,
-        planning,
-        site_obstacles(site, planning.clearance_m),
-    )
-    if isinstance(plan, PlanRefusal):
-        return _failure(f"no plan: {plan.reason}", params, started, **counts, **merge_error)
-    controller = PalletApproach(plan, approach_params(config))
-    first_plan, replans = plan, 0
-    obstacles = site_obstacles(site, planning.clearance_m)
-    others = [m.pallet for m in merged.pallets if m is not chosen]
+    scans: dict[str, MountedScan | None] = {name: None for name in SCANNERS}
     pid = PidSpeedController()
     control_dt, world_dt = 1.0 / params.control_hz, 1.0 / params.world_hz
-    next_control = t_s
+    t_s, next_control = 0.0, 0.0
     command = VehicleCommand()
-    detection: Pallet | None = None
-    order = None
-    deadline = t_s + params.timeout_s
+    engaged = False
+    wish: AutopilotWish | None = None
+    first_plan: PalletPlan | None = None
+    deadline = params.timeout_s
     while t_s < deadline:
-        localizer.odometry(
-            t_s, state.speed_mps * speed_scale, state.rear_steer_rad + steer_bias, wheelbase,
-            characteristic_speed_mps=v_char,
-        )  # fmt: skip
-        due = scan_due(t_s)
-        looking = controller.phase in (PalletPhase.REDETECT, PalletPhase.FINAL)
-        if looking and due:
-            estimate = localizer.estimate(t_s)
-            if estimate.pose is not None:
-                expected = controller.detected_pallet or chosen.pallet
-                for name in due:
-                    for found in scanners.pallets(name, latest[name], estimate.pose):
-                        near = math.hypot(found.x_m - expected.x_m, found.y_m - expected.y_m)
-                        if found.kind is expected.kind and near < 0.6:
-                            detection = found
+        truth = Pose2D(state.x_m, state.y_m, state.yaw_rad)
+        for name in SCANNERS:
+            if t_s + 1e-9 >= next_scan[name]:
+                scans[name] = _mounted(scanners, name, scanners.render(name, t_s, truth), t_s)
+                next_scan[name] += scanners.period_s
         if t_s + 1e-9 >= next_control:
             next_control += control_dt
-            estimate = localizer.estimate(t_s)
-            usable = estimate.status in (LandmarkStatus.OK, LandmarkStatus.DEGRADED)
-            order = controller.update(
-                estimate.pose if usable else None,
-                estimate.covariance if usable else None,
-                state.speed_mps * speed_scale,
+            observation = Observation(
                 t_s,
-                detection,
+                state.speed_mps * speed_scale,
+                state.rear_steer_rad + steer_bias,
+                dict(scans),
+                engaged,
+                jobs_done=jobs.done(),
             )
-            detection = None
-            throttle, brake, reverse = pid.update(order.speed_mps, state.speed_mps, control_dt)
-            command = VehicleCommand(
-                MotionPattern.REAR_STEER, 0.0, order.steer_rad, throttle, brake, reverse
-            )
+            wish = source.update(observation)
+            if source.plan is not None and first_plan is None:
+                first_plan = source.plan
+            if source.target is None and source.names:
+                # The worker taps the target: the merged pallet where the true one stands.
+                entries = source.site.result.pallets if source.site and source.site.result else ()
+                near = [
+                    (
+                        math.hypot(
+                            e.pallet.x_m - truth_target.x_m, e.pallet.y_m - truth_target.y_m
+                        ),
+                        n,
+                    )
+                    for n, e in zip(source.names, entries, strict=True)
+                ]
+                off_m, name = min(near)
+                if off_m > 0.5:
+                    break
+                source.select_pallet(name)
             standing = abs(state.speed_mps) < 1e-4
-            seen_again = controller.detected_pallet
-            if (
-                order.phase is PalletPhase.REFUSED
-                and standing
-                and seen_again is not None
-                and replans < params.max_replans
-                and estimate.pose is not None
-            ):
-                again = plan_pallet_approach(
-                    estimate.pose, PalletTarget(seen_again), [*others, seen_again], shape,
-                    planning, obstacles,
-                )  # fmt: skip
-                replans += 1  # tried: a refused plan is not tried again and again
-                if not isinstance(again, PlanRefusal):
-                    plan = again
-                    controller = PalletApproach(plan, approach_params(config))
-            elif order.phase in (PalletPhase.DONE, PalletPhase.REFUSED) and standing:
+            phase = None if source.controller is None else source.controller.phase
+            if engaged and not wish.ready:
+                engaged = False  # a refusal engaged: the core would fault and stop
+            elif not engaged and wish.ready and phase is PalletPhase.TO_VIEW:
+                engaged = True  # the worker holds the button from when it may
+            speed = wish.speed_mps if engaged and wish.speed_mps is not None else 0.0
+            throttle, brake, reverse = pid.update(speed, state.speed_mps, control_dt)
+            command = VehicleCommand(
+                MotionPattern.REAR_STEER, 0.0, wish.steer_tyre_rad, throttle, brake, reverse
+            )
+            ended = phase is PalletPhase.DONE or (not engaged and first_plan is not None)
+            unmerged = source.site is None and t_s > MERGE_GIVE_UP_S
+            if standing and (ended or unmerged or (source.plan_problem and not engaged)):
                 break
         state = step(state, command, world_dt, vehicle)
         t_s += world_dt
-    truth = truth_of(state)
+    return _result(params, source, wish, state, truth_target, first_plan, worker_in_site,
+                   config, t_s, deadline, started)  # fmt: skip
+
+
+def _result(
+    params: PalletRunParams,
+    source: PalletAutopilot,
+    wish: AutopilotWish | None,
+    state: VehicleState,
+    truth_target: Pallet,
+    first_plan: PalletPlan | None,
+    worker_in_site: Pose2D,
+    config: VehicleConfig,
+    t_s: float,
+    deadline: float,
+    started: float,
+) -> PalletResult:
+    counts: dict[str, float | int] = {"worker_pallets": len(source.worker or ())}
+    site_merge = source.site
+    if site_merge is None or site_merge.result is None:
+        return _failure(source.merge_problem, params, started, **counts)
+    counts["vehicle_pallets"] = len(site_merge.vehicle)
+    fitted = site_merge.result.worker_in_vehicle
+    merge_error = {
+        "merge_error_m": math.dist(fitted[:2], worker_in_site[:2]),
+        "merge_error_deg": math.degrees(
+            abs(math.remainder(fitted.yaw_rad - worker_in_site.yaw_rad, math.tau))
+        ),
+    }
+    if source.target is None:
+        return _failure("the target is not in the merged map", params, started, **counts,
+                        **merge_error)  # fmt: skip
+    plan, controller = source.plan, source.controller
+    if first_plan is None or plan is None or controller is None:
+        return _failure(source.plan_problem or "no plan", params, started, **counts,
+                        **merge_error)  # fmt: skip
+    shape = source.shape
+    truth = Pose2D(state.x_m, state.y_m, state.yaw_rad)
     face = nearest_entry_face(truth_target, plan.face.entry_yaw_rad)
     errors_at = face_errors(
         truth, face, shape.guide_forward_m, shape.tips_forward_m, shape.forks_offset_y_m
     )
     gap_m = config.pallets.final_gap_m
     translation = math.hypot(errors_at.tips_lateral_m, errors_at.tips_along_m + gap_m)
-    phase = "timeout" if order is None else str(order.phase)
-    reason = "" if order is None else order.refused
-    success = order is not None and order.phase is PalletPhase.DONE
+    success = controller.phase is PalletPhase.DONE
+    reason = "at the pallet" if success else (controller.refused or (wish.reason if wish else ""))
     return PalletResult(
         success=success,
-        reason=reason if not success else "at the pallet",
-        phase=phase if t_s < deadline else "timeout",
+        reason=reason,
+        phase="timeout" if t_s >= deadline else str(controller.phase),
         tips_lateral_m=errors_at.tips_lateral_m,
         heading_error_deg=math.degrees(errors_at.heading_rad),
         tips_along_m=errors_at.tips_along_m,
         translation_error_m=translation,
         sim_time_s=t_s,
         wall_time_s=time.perf_counter() - started,
-        worker_pallets=len(worker),
-        vehicle_pallets=len(vehicle_map),
+        worker_pallets=int(counts["worker_pallets"]),
+        vehicle_pallets=int(counts["vehicle_pallets"]),
         plan_length_m=first_plan.length_m,
         face=plan.face.index,
         trial=params.trial,

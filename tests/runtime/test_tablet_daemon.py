@@ -35,7 +35,10 @@ async def _until(condition: object, timeout_s: float) -> None:
 async def test_a_tablet_holds_the_forklift_engaged_and_a_release_or_silence_ends_it() -> None:
     config = isolated(load_config("forklift-sim"))
     tablet = config.tablet_page.model_copy(update={"enabled": True, "port": 0})
-    config = config.model_copy(update={"tablet_page": tablet})
+    # The hold's mechanics, on a source that is always ready (the pallet source's own
+    # flow is test_pallet_daemon's).
+    engagement = config.engagement.model_copy(update={"autopilot_source": "hold_straight"})
+    config = config.model_copy(update={"tablet_page": tablet, "engagement": engagement})
     directory = tempfile.mkdtemp(prefix="dbw-", dir="/tmp")
     daemon = Daemon(config, control_socket=str(Path(directory) / "control.sock"), record=False)
     run: asyncio.Future[RunResult] = asyncio.ensure_future(daemon.run(handle_signals=False))
