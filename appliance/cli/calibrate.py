@@ -165,7 +165,12 @@ def scanners(
     config = load_or_exit(config_name)
     if calibration_file is not None:
         try:  # fail before the fit, not after it
-            read_calibration_file(calibration_file, config.name, config.simulation.enabled)
+            read_calibration_file(
+                calibration_file,
+                config.name,
+                config.simulation.enabled,
+                config.simulation.steering.steering_ratio,
+            )
         except CalibrationError as exc:
             _bad_input(exc.render().replace("\n", " "))
     try:

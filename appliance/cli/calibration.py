@@ -23,7 +23,7 @@ from appliance.config.calibration_file import (
     read_vehicle_calibration,
     write_calibration,
 )
-from appliance.config.simulated_calibration import simulated_calibration
+from appliance.config.simulated_calibration import servo_of, simulated_calibration
 from appliance.sim.scanner_truth import with_simulated_scanners
 
 
@@ -97,7 +97,8 @@ def calibration_write_simulated(out: str, config_name: str | None) -> None:
             "the simulated vehicle's mapping: use it only with `dbw sim`, never on a vehicle",
             err=True,
         )
-    model = with_simulated_scanners(simulated_calibration(config.name), config)
+    servo = servo_of(config.simulation.steering.steering_ratio)
+    model = with_simulated_scanners(simulated_calibration(config.name, servo=servo), config)
     try:
         write_calibration(out, model)
     except OSError as exc:

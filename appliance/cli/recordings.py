@@ -72,7 +72,9 @@ def load_calibration_or_exit(path: str | None, config: VehicleConfig) -> Calibra
     from appliance.config.calibration_file import CalibrationError, load_calibration
 
     try:
-        return load_calibration(path, config.name, config.simulation.enabled)
+        return load_calibration(
+            path, config.name, config.simulation.enabled, config.simulation.steering.steering_ratio
+        )
     except CalibrationError as exc:
         bad_input(exc.render().replace("\n", " "))
     except OSError as exc:

@@ -26,7 +26,7 @@ from appliance.config.atomic import write_text_atomic
 from appliance.config.calibration_file import write_calibration
 from appliance.config.loader import to_toml
 from appliance.config.models import CanEndpoint
-from appliance.config.simulated_calibration import simulated_calibration
+from appliance.config.simulated_calibration import servo_of, simulated_calibration
 from appliance.logs import get_logger
 from appliance.sim.bench import SimBench
 from appliance.sim.bench_socket import serve_bench
@@ -129,7 +129,11 @@ async def run_simulator(
                 calibration_file,
                 # A flat-bed's scanners too: the other process cannot know their truth.
                 with_simulated_scanners(
-                    simulated_calibration(f"{config.name}-via-dbw-sim"), config
+                    simulated_calibration(
+                        f"{config.name}-via-dbw-sim",
+                        servo=servo_of(config.simulation.steering.steering_ratio),
+                    ),
+                    config,
                 ),
             )
             text = daemon_config(config, simulator, can, calibration_file.resolve())

@@ -27,7 +27,11 @@ from appliance.config.calibration import (
 )
 from appliance.config.loader import ConfigProblem, explain
 from appliance.config.models import VehicleConfig
-from appliance.config.simulated_calibration import simulated_calibration
+from appliance.config.simulated_calibration import (
+    DEFAULT_SERVO,
+    servo_of,
+    simulated_calibration,
+)
 
 BUILTIN_SIMULATED = "builtin:simulated"
 
@@ -49,14 +53,19 @@ class CalibrationError(Exception):
 
 
 def load_calibration(
-    path: str | Path, vehicle_name: str, simulation_enabled: bool = False
+    path: str | Path,
+    vehicle_name: str,
+    simulation_enabled: bool = False,
+    sim_steering_ratio: float = DEFAULT_SERVO.steering_ratio,
 ) -> Calibration:
     """Load and check the calibration of the vehicle called ``vehicle_name``.
 
     ``builtin:simulated`` is the built-in simulated vehicle's calibration, accepted only
     when the caller says the simulation is enabled.
     """
-    return Calibration.from_file(read_calibration_file(path, vehicle_name, simulation_enabled))
+    return Calibration.from_file(
+        read_calibration_file(path, vehicle_name, simulation_enabled, sim_steering_ratio)
+    )
 
 
 def read_vehicle_calibration(
@@ -66,7 +75,9 @@ def read_vehicle_calibration(
     its name, the simulation, and that its steering was measured after the kit's steering
     was installed (``kit.steering_installed_utc``)."""
     path = config.paths.calibration_file if path is None else path
-    model = read_calibration_file(path, config.name, config.simulation.enabled)
+    model = read_calibration_file(
+        path, config.name, config.simulation.enabled, config.simulation.steering.steering_ratio
+    )
     installed = config.kit.steering_installed_utc
     measured = steering_measured_utc(model)
     if installed is not None and str(path) != BUILTIN_SIMULATED and measured < installed:
@@ -101,9 +112,14 @@ def steering_measured_utc(model: CalibrationFile) -> datetime:
 
 
 def read_calibration_file(
-    path: str | Path, vehicle_name: str, simulation_enabled: bool = False
+    path: str | Path,
+    vehicle_name: str,
+    simulation_enabled: bool = False,
+    sim_steering_ratio: float = DEFAULT_SERVO.steering_ratio,
 ) -> CalibrationFile:
-    """Like :func:`load_calibration`, but the validated file model (to show or rewrite)."""
+    """Like :func:`load_calibration`, but the validated file model (to show or rewrite).
+    ``sim_steering_ratio`` is the simulated steering's (``simulation.steering``), which
+    the built-in simulated calibration is of."""
     if str(path) == BUILTIN_SIMULATED:
         if not simulation_enabled:
             raise CalibrationError(
@@ -117,7 +133,7 @@ def read_calibration_file(
                     )
                 ],
             )
-        return simulated_calibration(vehicle_name)
+        return simulated_calibration(vehicle_name, servo=servo_of(sim_steering_ratio))
     path = Path(path)
     try:
         text = path.read_text(encoding="utf-8")

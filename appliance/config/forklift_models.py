@@ -105,6 +105,11 @@ class PalletGuidanceSettings(_Model):
     # The pallet must be re-detected this near to where the map puts it, or the
     # approach is refused (a different pallet, or the worker's map is off).
     redetect_gate_m: float = Field(0.5, gt=0.0, le=3.0)
+    # How fast the guidance turns the steering it wishes for: the servo must follow it
+    # within safety.steer_tracking_tolerance_deg (its lag, ~0.3 s on the simulated
+    # forklift, times this rate), or the tracking rule stops the vehicle. Also the rate
+    # the approach plans its speed for (slower where the wheels must turn).
+    steer_rate_deg_per_s: float = Field(8.0, gt=0.0, le=90.0)
     # Final-approach tolerances the vehicle must be inside before the forks go in.
     max_lateral_error_m: float = Field(0.01, gt=0.0, le=0.2)
     max_heading_error_deg: float = Field(0.3, gt=0.0, le=5.0)

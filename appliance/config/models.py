@@ -545,6 +545,9 @@ class SimSteering(_Model):
     linkage_cubic: float = Field(0.0, ge=-0.3, le=0.3)
     # The true rear/front counter-steer ratio; None: the vehicle file's geometry value.
     counter_steer_ratio_k: float | None = Field(None, ge=0.0, le=1.0)
+    # Steering-wheel rad per tyre rad. The simulated wheel turns 1.5 turns each way, so
+    # 18 locks the tyres at 30 deg (a car), 9 at 60 deg (a forklift's rear axle).
+    steering_ratio: float = Field(18.0, ge=4.0, le=40.0)
 
 
 class Simulation(_Model):
@@ -613,7 +616,7 @@ class VehicleConfig(_Model):
         """The simulated linkage must not turn the tyre past the vehicle's steering limit
         at the wheel's lock: the simulated vehicle clamps its tyres there, so the linkage
         a calibration measured would not be the one configured."""
-        servo = ServoParams()
+        servo = ServoParams(steering_ratio=self.simulation.steering.steering_ratio)
         cubic = self.simulation.steering.linkage_cubic
         lock_deg = math.degrees(servo.wheel_limit_rad / servo.steering_ratio * (1.0 + cubic))
         if lock_deg > self.limits.max_steer_angle_deg:

@@ -9,6 +9,7 @@ maneuver fits measured points, and ``source`` says so rather than claiming a mea
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 from datetime import UTC, datetime
 
 import numpy as np
@@ -69,3 +70,8 @@ def simulated_calibration(
             steering_ratio=float(servo.steering_ratio),
         ),
     )
+
+
+def servo_of(steering_ratio: float) -> ServoParams:
+    """The simulated servo with the vehicle file's ``simulation.steering.steering_ratio``."""
+    return replace(DEFAULT_SERVO, steering_ratio=steering_ratio)

@@ -81,6 +81,8 @@ REPLAN_MOVED_M = 0.10
 REPLAN_MOVED_RAD = math.radians(3.0)
 # A detection is the target's when of its kind and this near where it is expected.
 DETECTION_GATE_M = 0.6
+# The wheels this far from where the controller wants them: the vehicle waits for them.
+STEER_WAIT_RAD = math.radians(6.0)
 
 
 def landmark_map(config: VehicleConfig) -> LandmarkMap:
@@ -151,9 +153,9 @@ class PalletAutopilot:
             dict(scanners) if scanners is not None else parts.scanner_setups(config, calibration)
         )
         self.localizer = LandmarkLocalizer(self.setups, landmark_map(config))
-        self.shape = vehicle_shape(config)
+        self.shape = vehicle_shape(config, calibration)
         self.planning = plan_params(config)
-        self.approach_params = approach_params(config)
+        self.approach_params = approach_params(config, calibration)
         self.obstacles = site_obstacles(config, self.planning.clearance_m)
         marker = config.pallets.worker_marker
         self.marker = Pose2D(marker.x_m, marker.y_m, math.radians(marker.yaw_deg))
@@ -172,7 +174,7 @@ class PalletAutopilot:
         """Everything but the worker's map: the source as it was built."""
         self.localizer.reset()
         self._seen: dict[str, MountedScan] = {}
-        self._latest: dict[str, MountedScan] = {}
+        self._latest: dict[str, MountedScan] = {}  # by the scanner's name in the setups
         self._scan_seen_s: dict[str, float] = {}
         self.site: SiteMerge | None = None
         self.merge_problem = "the maps are not merged yet: the vehicle stands localized first"
@@ -190,6 +192,8 @@ class PalletAutopilot:
         self._driven = False  # the controller has been stepped engaged since the plan
         self._paused = True
         self._last: dict[str, Any] = {}
+        self._steer_wish_rad: float | None = None  # the last wished, rate-limited
+        self._steer_wish_s = 0.0
 
     def reset(self) -> None:
         """An engagement (or the loop restarted): the approach goes on where it was, as
@@ -215,6 +219,7 @@ class PalletAutopilot:
             self._start_work(estimate, now_s)
         if not observation.engaged:
             self._paused = True
+            self._steer_wish_rad = None
             return self._standing_wish(estimate, observation)
         return self._engaged_wish(estimate, observation, fresh, standing)
 
@@ -238,7 +243,9 @@ class PalletAutopilot:
         self._driven = False
 
     # ---- scans and background work -----------------------------------------------------
-    def _feed(self, scans: Mapping[str, MountedScan | None], now_s: float) -> list[MountedScan]:
+    def _feed(
+        self, scans: Mapping[str, MountedScan | None], now_s: float
+    ) -> list[tuple[str, MountedScan]]:
         fresh = []
         for name, mounted in scans.items():
             if mounted is None or self._seen.get(name) is mounted or name not in self.setups:
@@ -249,15 +256,15 @@ class PalletAutopilot:
                 name, mounted.scan.ranges_m, angles, mounted.host_receive_time_s, now_s
             )
             self._latest[name] = mounted
-            fresh.append(mounted)
+            fresh.append((name, mounted))
         return fresh
 
-    def _view(self, mounted: MountedScan, pose: Pose2D) -> ScanView:
-        setup = self.setups[mounted.sensor]
+    def _view(self, name: str, mounted: MountedScan, pose: Pose2D) -> ScanView:
+        setup = self.setups[name]
         ranges = mounted.scan.ranges_m
         corrected = np.where(ranges > 0.0, ranges - setup.range_offset_m, 0.0)
         return ScanView(
-            mounted.sensor,
+            name,
             corrected,
             mounted.scan.angles_rad - DEVICE_FORWARD_RAD,
             pose.compose(setup.mount),
@@ -272,8 +279,15 @@ class PalletAutopilot:
                 return
             if set(self._latest) != set(self.setups):
                 return
-            views = tuple(self._view(m, pose) for m in self._latest.values())
-            merge = partial(merge_from_scans, views, self.worker, self.marker, self.merge_params)
+            views = tuple(self._view(name, m, pose) for name, m in self._latest.items())
+            merge = partial(
+                merge_from_scans,
+                views,
+                self.worker,
+                self.marker,
+                self.merge_params,
+                self.config.pallets.kinds,
+            )
             self._submit(now_s, "merge", merge)
             self._next_merge_s = now_s + MERGE_RETRY_S
             return
@@ -389,7 +403,7 @@ class PalletAutopilot:
         self,
         estimate: LandmarkEstimate,
         observation: Observation,
-        fresh: list[MountedScan],
+        fresh: list[tuple[str, MountedScan]],
         standing: bool,
     ) -> AutopilotWish:
         now_s = observation.now_s
@@ -425,19 +439,46 @@ class PalletAutopilot:
                     self._start_work(estimate, now_s)
                 return self._wish(True, "", estimate, 0.0, steer, order, "planning again")
             return self._wish(False, self._refusal(estimate), estimate, 0.0, steer, order)
-        return self._wish(True, "", estimate, order.speed_mps, order.steer_rad, order)
+        steer = self._steer_towards(order.steer_rad, observation)
+        speed = order.speed_mps * self._steer_speed_share(order.steer_rad, observation)
+        return self._wish(True, "", estimate, speed, steer, order)
 
-    def _detection(self, controller: PalletApproach, fresh: list[MountedScan]) -> Pallet | None:
+    def _steer_towards(self, wanted_rad: float, observation: Observation) -> float:
+        """The wish moved towards ``wanted_rad`` at ``pallets.steer_rate_deg_per_s``
+        (from the measured angle when starting): a servo that follows it stays within
+        the steering tracking rule's tolerance."""
+        now_s = observation.now_s
+        last = self._steer_wish_rad
+        if last is None:
+            last = observation.steer_tyre_rad if observation.steer_tyre_rad is not None else 0.0
+            self._steer_wish_s = now_s
+        step = self.approach_params.max_steer_rate_rad_per_s * max(0.0, now_s - self._steer_wish_s)
+        wish = last + max(-step, min(step, wanted_rad - last))
+        self._steer_wish_rad, self._steer_wish_s = wish, now_s
+        return wish
+
+    def _steer_speed_share(self, wanted_rad: float, observation: Observation) -> float:
+        """How much of the controller's speed to drive at while the wheels are not yet
+        where it wants them: none at ``STEER_WAIT_RAD`` off (it waits for them, standing),
+        all of it when they are there. The planned arcs assume the wheels turn in time."""
+        measured = observation.steer_tyre_rad
+        if measured is None or not math.isfinite(measured):
+            return 0.0
+        return max(0.0, 1.0 - abs(wanted_rad - measured) / STEER_WAIT_RAD)
+
+    def _detection(
+        self, controller: PalletApproach, fresh: list[tuple[str, MountedScan]]
+    ) -> Pallet | None:
         """The target in this cycle's newest scan, looking again or going in."""
         if controller.phase not in (PalletPhase.REDETECT, PalletPhase.FINAL) or not fresh:
             return None
         expected = controller.detected_pallet or controller.plan.target
-        mounted = max(fresh, key=lambda m: m.host_receive_time_s)
+        name, mounted = max(fresh, key=lambda named: named[1].host_receive_time_s)
         at_scan = self.localizer.estimate(mounted.host_receive_time_s)
         if at_scan.pose is None:
             return None
         found = None
-        for pallet in scan_pallets(self._view(mounted, at_scan.pose)):
+        for pallet in scan_pallets(self._view(name, mounted, at_scan.pose), (expected.kind,)):
             near_m = math.hypot(pallet.x_m - expected.x_m, pallet.y_m - expected.y_m)
             if pallet.kind is expected.kind and near_m < DETECTION_GATE_M:
                 found = pallet
@@ -517,6 +558,7 @@ class PalletAutopilot:
                 else round(order.distance_m, 3),
                 "detections": order.detections,
                 "waiting": order.waiting,
+                "rejected": order.rejected,
             }
         return status
 

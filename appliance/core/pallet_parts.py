@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import math
 
+from appliance.config.calibration import Calibration
 from appliance.config.models import VehicleConfig
 from appliance.guidance.pallet_approach_params import PalletApproachParams
 from appliance.guidance.pallet_geometry import ScannerField, VehicleShape
@@ -13,7 +14,17 @@ from appliance.guidance.pallet_plan import PalletPlanParams
 from drivers.lms111.mounted import mount_pose
 
 
-def vehicle_shape(config: VehicleConfig) -> VehicleShape:
+def max_steer_rad(config: VehicleConfig, calibration: Calibration | None = None) -> float:
+    """The steering the guidance may plan with: the vehicle file's limit, and within the
+    range the pot is calibrated over (the core clamps every command to it)."""
+    limit = math.radians(config.limits.max_steer_angle_deg)
+    if calibration is None:
+        return limit
+    low, high = calibration.valid_tyre_range_rad
+    return min(limit, -low, high)
+
+
+def vehicle_shape(config: VehicleConfig, calibration: Calibration | None = None) -> VehicleShape:
     """The outline the planner checks (the body to the forks' heel, the forks beyond)
     and the scanners' fields the view pose is checked against."""
     forks = config.forks
@@ -22,7 +33,7 @@ def vehicle_shape(config: VehicleConfig) -> VehicleShape:
         width_m=config.geometry.width_m,
         front_m=forks.tips_forward_m,
         wheelbase_m=config.geometry.wheelbase_m,
-        max_steer_rad=math.radians(config.limits.max_steer_angle_deg),
+        max_steer_rad=max_steer_rad(config, calibration),
         tips_forward_m=forks.tips_forward_m,
         forks_offset_y_m=forks.offset_y_m,
         scanners=(
@@ -34,12 +45,16 @@ def vehicle_shape(config: VehicleConfig) -> VehicleShape:
     )
 
 
-def approach_params(config: VehicleConfig) -> PalletApproachParams:
+def approach_params(
+    config: VehicleConfig, calibration: Calibration | None = None
+) -> PalletApproachParams:
     pallets = config.pallets
     return PalletApproachParams(
         wheelbase_m=config.geometry.wheelbase_m,
-        max_steer_rad=math.radians(config.limits.max_steer_angle_deg),
-        max_steer_rate_rad_per_s=math.radians(config.limits.max_steer_rate_deg_per_s),
+        max_steer_rad=max_steer_rad(config, calibration),
+        max_steer_rate_rad_per_s=math.radians(
+            min(config.limits.max_steer_rate_deg_per_s, pallets.steer_rate_deg_per_s)
+        ),
         tips_forward_m=config.forks.tips_forward_m,
         forks_offset_y_m=config.forks.offset_y_m,
         final_gap_m=pallets.final_gap_m,

@@ -19,9 +19,10 @@ import numpy as np
 
 from appliance.guidance.pallet_plan import PalletPlan
 from appliance.mapping.merge import MergedPallet, MergeParams, MergeRefusal, MergeResult, merge_maps
+from appliance.mapping.pallet_fit import ALL_KINDS
 from appliance.mapping.pallet_fusion import fuse_pallets
-from appliance.mapping.pallets import Pallet, PalletMap
-from appliance.mapping.scan_pallets import detect_scan_pallets
+from appliance.mapping.pallets import Pallet, PalletKind, PalletMap
+from appliance.mapping.scan_pallets import ScanPalletParams, detect_scan_pallets
 from drivers.geometry import Pose2D
 
 FloatArray = np.ndarray
@@ -50,16 +51,24 @@ class SiteMerge:
     refused: str = ""
 
 
-def scan_pallets(view: ScanView) -> tuple[Pallet, ...]:
-    return detect_scan_pallets(view.ranges_m, view.angles_rad, view.scanner_pose).pallets
+def scan_pallets(view: ScanView, kinds: Sequence[PalletKind] = ALL_KINDS) -> tuple[Pallet, ...]:
+    """The pallets of one scan, of the footprints ``kinds``. Looking for a known pallet,
+    give its kind alone: one face seen square on (1.1 m: a 1100x1100's side or a
+    1200x800's long one, within the noise) is then no longer ambiguous."""
+    params = ScanPalletParams(kinds=tuple(kinds))
+    return detect_scan_pallets(view.ranges_m, view.angles_rad, view.scanner_pose, params).pallets
 
 
 def merge_from_scans(
-    views: Sequence[ScanView], worker: PalletMap, marker: Pose2D, params: MergeParams
+    views: Sequence[ScanView],
+    worker: PalletMap,
+    marker: Pose2D,
+    params: MergeParams,
+    kinds: Sequence[PalletKind] = ALL_KINDS,
 ) -> SiteMerge:
     """The pallets of ``views`` (both scanners', fused) as the vehicle's map, and the
     worker's merged into it from the floor marker's T0."""
-    seen = [pallet for view in views for pallet in scan_pallets(view)]
+    seen = [pallet for view in views for pallet in scan_pallets(view, kinds)]
     vehicle = PalletMap(fuse_pallets(seen, FUSE_GATE_M, FUSE_GATE_RAD), "vehicle")
     if not vehicle.pallets:
         return SiteMerge(vehicle, None, "the vehicle sees no pallet to merge the maps through")

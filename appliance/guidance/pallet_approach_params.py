@@ -74,19 +74,26 @@ class PalletApproachParams:
     redetect_timeout_s: float = 10.0
     redetect_samples: int = 5  # detections averaged before the final approach starts
     # FINAL
-    convergence_length_m: float = 0.2  # ℓ of the curvature law (pallet_final)
+    # ℓ of the curvature law (pallet_final). Shorter corrects faster on paper, but with
+    # the servo's and the wheels' lag (~0.3 s) and wheels turned at a few degrees a
+    # second it overshoots at a creep; 0.5 m holds on the simulated forklift's whole
+    # chain (benchmarks/bench_pallet.py).
+    convergence_length_m: float = 0.5
     settle_m: float = 0.5  # the reference reaches the axis this far before the stop
-    # The wheels reach a wish this much later (the servo's lag): the reference's
-    # curvature is wished for where the vehicle will be by then.
-    steer_lag_s: float = 0.15
+    # The wheels reach a wish this much later (the servo's position loop, 0.125 s, and
+    # the wheels' own lag): the reference's curvature is wished for where the vehicle
+    # will be by then.
+    steer_lag_s: float = 0.3
     min_correction_m: float = 0.3  # the reference needs at least this much room
     reference_curvature_fraction: float = 0.7  # of the vehicle's, at most
     final_decel_mps2: float = 0.1
     # In the final approach the speed lets the wheels follow the reference's changing
     # curvature at this fraction of their rate limit (the rest: their lag, the law).
-    steer_rate_fraction: float = 0.3
+    steer_rate_fraction: float = 0.6
     steer_rate_preview_m: float = 0.2
-    creep_speed_mps: float = 0.03  # above the speed loop's standstill threshold
+    # Well above the speed loop's standstill threshold: slower, a PID speed loop sticks
+    # and lurches, and the wheels turn on the spot meanwhile.
+    creep_speed_mps: float = 0.05
     stop_tolerance_m: float = 0.002
     track_gate_m: float = 0.05  # a later detection farther from the mean is not the target
     track_gate_rad: float = math.radians(3.0)

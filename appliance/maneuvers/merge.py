@@ -65,7 +65,12 @@ def merge_result(config: VehicleConfig, path: str | Path, result: StepResult) ->
     path = Path(path)
     if path.exists():
         try:
-            base = read_calibration_file(path, config.name, config.simulation.enabled)
+            base = read_calibration_file(
+                path,
+                config.name,
+                config.simulation.enabled,
+                config.simulation.steering.steering_ratio,
+            )
         except CalibrationError as exc:
             raise MergeError(
                 f"{exc.render()}\nthe existing file is not overwritten: fix it, or move it "

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -91,6 +91,10 @@ class PalletRunParams:
     # most this many times.
     max_replans: int = 2
     # The forklift's own odometry: its speed off by a scale, its steering by a bias.
+    # The kit's steering servo between the wish and the wheels: its position loop
+    # (`drivers.actuators.steering_model`, 8 /s) as a first-order lag, before the
+    # vehicle model's own (the daemon's simulated forklift has both).
+    servo_lag_s: float = 0.125
     speed_scale_sigma: float = 0.01
     steer_bias_sigma_rad: float = math.radians(0.2)
     merge: MergeParams = field(default_factory=MergeParams)
@@ -263,6 +267,7 @@ def run_pallet(config: VehicleConfig, params: PalletRunParams) -> PalletResult:
     t_s, next_control = 0.0, 0.0
     command = VehicleCommand()
     engaged = False
+    servo_rad = 0.0
     wish: AutopilotWish | None = None
     first_plan: PalletPlan | None = None
     deadline = params.timeout_s
@@ -310,12 +315,17 @@ def run_pallet(config: VehicleConfig, params: PalletRunParams) -> PalletResult:
             speed = wish.speed_mps if engaged and wish.speed_mps is not None else 0.0
             throttle, brake, reverse = pid.update(speed, state.speed_mps, control_dt)
             command = VehicleCommand(
-                MotionPattern.REAR_STEER, 0.0, wish.steer_tyre_rad, throttle, brake, reverse
+                MotionPattern.REAR_STEER, 0.0, servo_rad, throttle, brake, reverse
             )
             ended = phase is PalletPhase.DONE or (not engaged and first_plan is not None)
             unmerged = source.site is None and t_s > MERGE_GIVE_UP_S
             if standing and (ended or unmerged or (source.plan_problem and not engaged)):
                 break
+        if wish is not None:
+            servo_rad += (wish.steer_tyre_rad - servo_rad) * (
+                1.0 - math.exp(-world_dt / params.servo_lag_s)
+            )
+            command = replace(command, rear_steer_rad=servo_rad)
         state = step(state, command, world_dt, vehicle)
         t_s += world_dt
     return _result(params, source, wish, state, truth_target, first_plan, worker_in_site,

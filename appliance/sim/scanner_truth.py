@@ -2,7 +2,7 @@
 
 ``builtin:simulated`` is the simulated vehicle's true calibration (the pot mapping is fitted
 from the simulated pot, ``appliance.config.simulated_calibration``). For a simulated
-flat-bed it also holds each scanner's truth: the range offset and mount error the
+flat-bed or forklift it also holds each scanner's truth: the range offset and mount error the
 simulator drew for it (``draw_scanner_errors``), as if ``dbw calibrate scanners`` had
 measured them perfectly. Here, in the simulation's layer, because only it knows them; the
 daemon and ``dbw calibration write-simulated`` add them. To calibrate the simulated
@@ -53,7 +53,9 @@ def simulated_scanner_entries(config: VehicleConfig) -> dict[str, ScannerCalibra
 
 
 def with_simulated_scanners(model: CalibrationFile, config: VehicleConfig) -> CalibrationFile:
-    """``model`` with the simulated scanners' truth, for a simulated flat-bed; else as is."""
-    if config.kind is not VehicleKind.FLATBED or not config.simulation.enabled:
+    """``model`` with the simulated scanners' truth, for a simulated vehicle that
+    localizes on them (a flat-bed, a forklift); else as is."""
+    localizes = config.kind in (VehicleKind.FLATBED, VehicleKind.FORKLIFT)
+    if not localizes or not config.simulation.enabled:
         return model
     return with_scanners(model, simulated_scanner_entries(config))

@@ -81,7 +81,7 @@ class ActuatorTwins:
         # limit lags every hard turn until the tracking rule calls it a fault, which a real
         # installation avoids by setting limits.max_steer_rate_deg_per_s to what its servo
         # does.
-        servo = ServoParams()
+        servo = ServoParams(steering_ratio=steering.steering_ratio)
         needed_rad_per_s = (
             1.1 * math.radians(config.limits.max_steer_rate_deg_per_s) * servo.steering_ratio
         )
