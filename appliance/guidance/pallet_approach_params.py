@@ -76,9 +76,9 @@ class PalletApproachParams:
     # FINAL
     # ℓ of the curvature law (pallet_final). Shorter corrects faster on paper, but with
     # the servo's and the wheels' lag (~0.3 s) and wheels turned at a few degrees a
-    # second it overshoots at a creep; 0.5 m holds on the simulated forklift's whole
-    # chain (benchmarks/bench_pallet.py).
-    convergence_length_m: float = 0.5
+    # second it overshoots at a creep, and longer leaves the heading unsettled at the
+    # stop; 0.35 m holds on the simulated forklift's whole chain (bench_pallet.py).
+    convergence_length_m: float = 0.35
     settle_m: float = 0.5  # the reference reaches the axis this far before the stop
     # The wheels reach a wish this much later (the servo's position loop, 0.125 s, and
     # the wheels' own lag): the reference's curvature is wished for where the vehicle
