@@ -7,9 +7,9 @@ What it does, cycle by cycle, with nothing longer than a scan's work in the cycl
 2. standing localized, finds its own pallets in both scanners' scans and merges the
    worker's map (``pallets.worker_map``, from the floor marker's T0) into them: a
    background job (`appliance.core.jobs`), tried again every few seconds until it holds;
-3. when the worker selects a pallet (the tablet's "Select the object", or
-   `dbw pallet select`), plans the way to where the scanners see inside its reference
-   area: a job too (about a second), asked for with the vehicle standing;
+3. when the worker selects a pallet (the tablet's "Select the object"), plans the way
+   to where the scanners see inside its reference area: a job too (about a second),
+   asked for with the vehicle standing;
 4. engaged (the tablet's button held), drives the plan (`PalletApproach`): to the view
    pose, looks again, the last straight along what it sees, stops with the fork tips at
    the openings; a pallet found too far off the line is planned again from the
@@ -25,9 +25,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Mapping
-from dataclasses import replace
 from functools import partial
-from importlib import resources
 from typing import Any
 
 import numpy as np
@@ -36,42 +34,48 @@ from appliance.config import parts
 from appliance.config.calibration import Calibration
 from appliance.config.models import VehicleConfig
 from appliance.core.jobs import InlineJobs, JobOutcome, Jobs
-from appliance.core.pallet_parts import approach_params, plan_params, vehicle_shape
+from appliance.core.pallet_parts import (
+    approach_params,
+    landmark_map,
+    load_worker_map,
+    merge_params,
+    plan_params,
+    site_obstacles,
+    vehicle_shape,
+)
 from appliance.core.pallet_work import (
     ScanView,
     SiteMerge,
+    estimate_document,
     merge_from_scans,
     merged_names,
+    order_document,
     pallet_document,
     path_document,
     scan_pallets,
 )
 from appliance.core.wish import AutopilotWish, Observation
 from appliance.guidance.pallet_approach import PalletApproach, PalletOrder, PalletPhase
-from appliance.guidance.pallet_geometry import Obstacle, disc_obstacle, wall_obstacle
 from appliance.guidance.pallet_plan import (
     PalletPlan,
     PalletTarget,
     PlanRefusal,
     plan_pallet_approach,
 )
-from appliance.localization.landmark_initial import LandmarkMap
+from appliance.guidance.wheel_follow import WheelFollower, WheelFollowParams
 from appliance.localization.landmark_localizer import (
     LandmarkEstimate,
     LandmarkLocalizer,
     LandmarkStatus,
 )
-from appliance.localization.launcher_map import CylinderLandmark
 from appliance.localization.localizer_params import ScannerSetup
-from appliance.mapping.association import RobustParams
-from appliance.mapping.map_file import MapFileError, pallet_map_from_bytes, read_pallet_map
-from appliance.mapping.merge import MergedPallet, MergeParams
+from appliance.mapping.map_file import MapFileError
+from appliance.mapping.merge import MergedPallet
 from appliance.mapping.pallets import Pallet, PalletMap
 from drivers.geometry import Pose2D
 from drivers.lms111.mounted import DEVICE_FORWARD_RAD, MountedScan
 from drivers.pc104.messages import MotionPattern, PoseState
 
-BUILTIN_WORKER_MAP = "builtin:pallets"  # the simulated terminal's survey of `pallets`
 MAX_REPLANS = 2
 STANDING_MPS = 0.02
 MERGE_RETRY_S = 5.0
@@ -81,54 +85,6 @@ REPLAN_MOVED_M = 0.10
 REPLAN_MOVED_RAD = math.radians(3.0)
 # A detection is the target's when of its kind and this near where it is expected.
 DETECTION_GATE_M = 0.6
-# The wheels this far from where the controller wants them: the vehicle waits for them.
-STEER_WAIT_RAD = math.radians(6.0)
-
-
-def landmark_map(config: VehicleConfig) -> LandmarkMap:
-    return LandmarkMap(
-        tuple(
-            CylinderLandmark(lm.name, lm.x_m, lm.y_m, lm.radius_m)
-            for lm in config.pallets.landmarks
-        )
-    )
-
-
-def site_obstacles(config: VehicleConfig, clearance_m: float) -> tuple[Obstacle, ...]:
-    """The walls, posts and columns, which the merged map (pallets only) does not hold."""
-    walls = tuple(
-        wall_obstacle(w.x0_m, w.y0_m, w.x1_m, w.y1_m, clearance_m, w.name)
-        for w in config.pallets.walls
-    )
-    discs = [(c.x_m, c.y_m, c.radius_m, c.name) for c in config.pallets.landmarks]
-    discs += [(c.x_m, c.y_m, c.radius_m, c.name) for c in config.pallets.columns]
-    posts = tuple(disc_obstacle(x, y, r, clearance_m, name) for x, y, r, name in discs)
-    return walls + posts
-
-
-def load_worker_map(spec: str) -> PalletMap:
-    """The worker's map the vehicle file names (raises `MapFileError` saying why not)."""
-    if not spec:
-        raise MapFileError("no worker map: set pallets.worker_map in the vehicle file")
-    if spec == BUILTIN_WORKER_MAP:
-        data = resources.files("appliance.config").joinpath("maps/pallets-worker.json")
-        return pallet_map_from_bytes(data.read_bytes(), spec, "worker").pallet_map
-    return read_pallet_map(spec, "worker").pallet_map
-
-
-def merge_params(config: VehicleConfig) -> MergeParams:
-    w = config.pallets.merge_w_m2_per_rad2
-    if w is None:
-        return MergeParams()
-    return MergeParams(robust=replace(RobustParams(), w_m2_per_rad2=w))
-
-
-def _pose_document(pose: Pose2D) -> dict[str, float]:
-    return {
-        "x_m": round(pose.x_m, 4),
-        "y_m": round(pose.y_m, 4),
-        "yaw_deg": round(math.degrees(pose.yaw_rad), 3),
-    }
 
 
 class PalletAutopilot:
@@ -157,6 +113,9 @@ class PalletAutopilot:
         self.planning = plan_params(config)
         self.approach_params = approach_params(config, calibration)
         self.obstacles = site_obstacles(config, self.planning.clearance_m)
+        self.wheels = WheelFollower(
+            WheelFollowParams(self.approach_params.max_steer_rate_rad_per_s)
+        )
         marker = config.pallets.worker_marker
         self.marker = Pose2D(marker.x_m, marker.y_m, math.radians(marker.yaw_deg))
         self.merge_params = merge_params(config)
@@ -175,7 +134,6 @@ class PalletAutopilot:
         self.localizer.reset()
         self._seen: dict[str, MountedScan] = {}
         self._latest: dict[str, MountedScan] = {}  # by the scanner's name in the setups
-        self._scan_seen_s: dict[str, float] = {}
         self.site: SiteMerge | None = None
         self.merge_problem = "the maps are not merged yet: the vehicle stands localized first"
         self.names: tuple[str, ...] = ()
@@ -192,8 +150,7 @@ class PalletAutopilot:
         self._driven = False  # the controller has been stepped engaged since the plan
         self._paused = True
         self._last: dict[str, Any] = {}
-        self._steer_wish_rad: float | None = None  # the last wished, rate-limited
-        self._steer_wish_s = 0.0
+        self.wheels.reset()
 
     def reset(self) -> None:
         """An engagement (or the loop restarted): the approach goes on where it was, as
@@ -219,11 +176,11 @@ class PalletAutopilot:
             self._start_work(estimate, now_s)
         if not observation.engaged:
             self._paused = True
-            self._steer_wish_rad = None
+            self.wheels.reset()
             return self._standing_wish(estimate, observation)
         return self._engaged_wish(estimate, observation, fresh, standing)
 
-    # ---- selection (the tablet, `dbw pallet select`) ------------------------------------
+    # ---- selection (the tablet's "Select the object") ------------------------------------
     def select_pallet(self, name: str) -> tuple[bool, str]:
         """The pallet to go to, by its name in the merged map; planned from where the
         vehicle stands. The core refuses it while engaged."""
@@ -335,7 +292,7 @@ class PalletAutopilot:
         outcome = self.jobs.result(key) or JobOutcome(error="its result is gone")
         if kind == "merge":
             self._merged(outcome)
-        else:
+        elif not self._plan_wanted:  # else a newer selection's plan is still to come
             self._planned(outcome)
 
     def _merged(self, outcome: JobOutcome) -> None:
@@ -439,32 +396,8 @@ class PalletAutopilot:
                     self._start_work(estimate, now_s)
                 return self._wish(True, "", estimate, 0.0, steer, order, "planning again")
             return self._wish(False, self._refusal(estimate), estimate, 0.0, steer, order)
-        steer = self._steer_towards(order.steer_rad, observation)
-        speed = order.speed_mps * self._steer_speed_share(order.steer_rad, observation)
-        return self._wish(True, "", estimate, speed, steer, order)
-
-    def _steer_towards(self, wanted_rad: float, observation: Observation) -> float:
-        """The wish moved towards ``wanted_rad`` at ``pallets.steer_rate_deg_per_s``
-        (from the measured angle when starting): a servo that follows it stays within
-        the steering tracking rule's tolerance."""
-        now_s = observation.now_s
-        last = self._steer_wish_rad
-        if last is None:
-            last = observation.steer_tyre_rad if observation.steer_tyre_rad is not None else 0.0
-            self._steer_wish_s = now_s
-        step = self.approach_params.max_steer_rate_rad_per_s * max(0.0, now_s - self._steer_wish_s)
-        wish = last + max(-step, min(step, wanted_rad - last))
-        self._steer_wish_rad, self._steer_wish_s = wish, now_s
-        return wish
-
-    def _steer_speed_share(self, wanted_rad: float, observation: Observation) -> float:
-        """How much of the controller's speed to drive at while the wheels are not yet
-        where it wants them: none at ``STEER_WAIT_RAD`` off (it waits for them, standing),
-        all of it when they are there. The planned arcs assume the wheels turn in time."""
-        measured = observation.steer_tyre_rad
-        if measured is None or not math.isfinite(measured):
-            return 0.0
-        return max(0.0, 1.0 - abs(wanted_rad - measured) / STEER_WAIT_RAD)
+        steer, share = self.wheels.update(order.steer_rad, observation.steer_tyre_rad, now_s)
+        return self._wish(True, "", estimate, order.speed_mps * share, steer, order)
 
     def _detection(
         self, controller: PalletApproach, fresh: list[tuple[str, MountedScan]]
@@ -531,35 +464,16 @@ class PalletAutopilot:
             else "waiting"
         )
         status: dict[str, Any] = {
-            "localization": {
-                "status": str(estimate.status),
-                "reason": estimate.reason,
-                "landmarks": list(estimate.landmarks),
-            },
+            "localization": estimate_document(estimate),
             "merged": self.site is not None and self.site.result is not None,
             "target": self.target,
             "phase": phase,
             "replans": self.replans,
         }
-        if estimate.pose is not None:
-            status["localization"]["pose"] = _pose_document(estimate.pose)
         if reason:
             status["refused"] = reason
         if order is not None:
-            status["approach"] = {
-                "lateral_mm": None
-                if not math.isfinite(order.lateral_error_m)
-                else round(1000 * order.lateral_error_m, 2),
-                "heading_deg": None
-                if not math.isfinite(order.heading_error_rad)
-                else round(math.degrees(order.heading_error_rad), 3),
-                "distance_m": None
-                if not math.isfinite(order.distance_m)
-                else round(order.distance_m, 3),
-                "detections": order.detections,
-                "waiting": order.waiting,
-                "rejected": order.rejected,
-            }
+            status["approach"] = order_document(order)
         return status
 
     def state_for_tablet(self) -> dict[str, Any]:

@@ -1,17 +1,34 @@
-"""The forklift's pallet guidance built from the vehicle file: the vehicle's outline and
-the planner's and controller's parameters (guidance reads no configuration: its callers,
-the `pallet` source and `dbw sim pallet`, build its plain numbers here, once)."""
+"""The forklift's pallet guidance built from the vehicle file: the vehicle's outline, the
+planner's and controller's parameters, the site's posts and walls, the worker's map and
+the merge's weights (guidance, mapping and localization read no configuration: their
+caller, the `pallet` source, builds their plain values here, once)."""
 
 from __future__ import annotations
 
 import math
+from dataclasses import replace
+from importlib import resources
 
 from appliance.config.calibration import Calibration
 from appliance.config.models import VehicleConfig
 from appliance.guidance.pallet_approach_params import PalletApproachParams
-from appliance.guidance.pallet_geometry import ScannerField, VehicleShape
+from appliance.guidance.pallet_geometry import (
+    Obstacle,
+    ScannerField,
+    VehicleShape,
+    disc_obstacle,
+    wall_obstacle,
+)
 from appliance.guidance.pallet_plan import PalletPlanParams
+from appliance.localization.landmark_initial import LandmarkMap
+from appliance.localization.launcher_map import CylinderLandmark
+from appliance.mapping.association import RobustParams
+from appliance.mapping.map_file import MapFileError, pallet_map_from_bytes, read_pallet_map
+from appliance.mapping.merge import MergeParams
+from appliance.mapping.pallets import PalletMap
 from drivers.lms111.mounted import mount_pose
+
+BUILTIN_WORKER_MAP = "builtin:pallets"  # the simulated terminal's survey of `pallets`
 
 
 def max_steer_rad(config: VehicleConfig, calibration: Calibration | None = None) -> float:
@@ -68,3 +85,41 @@ def approach_params(
 
 def plan_params(config: VehicleConfig) -> PalletPlanParams:
     return PalletPlanParams(approach_standoff_m=config.pallets.approach_standoff_m)
+
+
+def landmark_map(config: VehicleConfig) -> LandmarkMap:
+    return LandmarkMap(
+        tuple(
+            CylinderLandmark(lm.name, lm.x_m, lm.y_m, lm.radius_m)
+            for lm in config.pallets.landmarks
+        )
+    )
+
+
+def site_obstacles(config: VehicleConfig, clearance_m: float) -> tuple[Obstacle, ...]:
+    """The walls, posts and columns, which the merged map (pallets only) does not hold."""
+    walls = tuple(
+        wall_obstacle(w.x0_m, w.y0_m, w.x1_m, w.y1_m, clearance_m, w.name)
+        for w in config.pallets.walls
+    )
+    discs = [(c.x_m, c.y_m, c.radius_m, c.name) for c in config.pallets.landmarks]
+    discs += [(c.x_m, c.y_m, c.radius_m, c.name) for c in config.pallets.columns]
+    posts = tuple(disc_obstacle(x, y, r, clearance_m, name) for x, y, r, name in discs)
+    return walls + posts
+
+
+def load_worker_map(spec: str) -> PalletMap:
+    """The worker's map the vehicle file names (raises `MapFileError` saying why not)."""
+    if not spec:
+        raise MapFileError("no worker map: set pallets.worker_map in the vehicle file")
+    if spec == BUILTIN_WORKER_MAP:
+        data = resources.files("appliance.config").joinpath("maps/pallets-worker.json")
+        return pallet_map_from_bytes(data.read_bytes(), spec, "worker").pallet_map
+    return read_pallet_map(spec, "worker").pallet_map
+
+
+def merge_params(config: VehicleConfig) -> MergeParams:
+    w = config.pallets.merge_w_m2_per_rad2
+    if w is None:
+        return MergeParams()
+    return MergeParams(robust=replace(RobustParams(), w_m2_per_rad2=w))

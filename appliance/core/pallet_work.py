@@ -17,7 +17,9 @@ from typing import Any
 
 import numpy as np
 
+from appliance.guidance.pallet_approach_params import PalletOrder
 from appliance.guidance.pallet_plan import PalletPlan
+from appliance.localization.landmark_localizer import LandmarkEstimate
 from appliance.mapping.merge import MergedPallet, MergeParams, MergeRefusal, MergeResult, merge_maps
 from appliance.mapping.pallet_fit import ALL_KINDS
 from appliance.mapping.pallet_fusion import fuse_pallets
@@ -126,3 +128,39 @@ def path_document(plan: PalletPlan, points: int = 200) -> list[list[float]]:
     if len(centres) and (len(centres) - 1) % step:
         kept = np.vstack([kept, centres[-1:]])
     return [[round(float(x), 3), round(float(y), 3)] for x, y in kept]
+
+
+def _finite(value: float, scale: float, digits: int) -> float | None:
+    return round(scale * value, digits) if math.isfinite(value) else None
+
+
+def pose_document(pose: Pose2D) -> dict[str, float]:
+    return {
+        "x_m": round(pose.x_m, 4),
+        "y_m": round(pose.y_m, 4),
+        "yaw_deg": round(math.degrees(pose.yaw_rad), 3),
+    }
+
+
+def estimate_document(estimate: LandmarkEstimate) -> dict[str, Any]:
+    """The pose on the posts for `dbw status` (and the tablet's vehicle)."""
+    document: dict[str, Any] = {
+        "status": str(estimate.status),
+        "reason": estimate.reason,
+        "landmarks": list(estimate.landmarks),
+    }
+    if estimate.pose is not None:
+        document["pose"] = pose_document(estimate.pose)
+    return document
+
+
+def order_document(order: PalletOrder) -> dict[str, Any]:
+    """The approach's errors and what it waits for, for `dbw status`."""
+    return {
+        "lateral_mm": _finite(order.lateral_error_m, 1000.0, 2),
+        "heading_deg": _finite(order.heading_error_rad, 180.0 / math.pi, 3),
+        "distance_m": _finite(order.distance_m, 1.0, 3),
+        "detections": order.detections,
+        "waiting": order.waiting,
+        "rejected": order.rejected,
+    }

@@ -16,7 +16,8 @@ from appliance.config import load_config
 from appliance.config.models import VehicleConfig
 from appliance.core.core import ControlCore
 from appliance.core.jobs import InlineJobs
-from appliance.core.pallet_autopilot import PalletAutopilot, load_worker_map
+from appliance.core.pallet_autopilot import PalletAutopilot
+from appliance.core.pallet_parts import load_worker_map
 from appliance.core.wish import AutopilotWish, Observation
 from appliance.mapping.map_file import MapFileError
 from appliance.sim.pallet_run import _mounted, _Scanners
@@ -149,3 +150,16 @@ def test_the_core_refuses_a_selection_while_engaged_and_tells_the_recorder() -> 
     )
     ok, why = other.select_pallet("row_a.r0c1")
     assert not ok and "not 'pallet'" in why
+
+
+def test_a_plan_for_an_earlier_selection_is_not_taken_for_a_later_one() -> None:
+    source = _source()
+    standing = Standing(source)
+    standing.run(2.0)
+    assert source.select_pallet("row_a.r0c1")[0]
+    standing.run(0.02)  # the plan to row_a.r0c1 asked for, not yet taken
+    assert source.select_pallet("row_a.r0c2")[0]
+    standing.run(0.2)
+    assert source.plan is not None and source.target == "row_a.r0c2"
+    target = source.plan.target
+    assert math.hypot(target.x_m - 4.0, target.y_m - (-1.0)) < 0.1
