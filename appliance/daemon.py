@@ -145,7 +145,9 @@ class Daemon:
             config.rates.control_hz,
             clock=clock,
         )
-        self.control.sinks.append(VehicleCommandSink(self.io, self.control.lease_s))
+        self.control.sinks.append(
+            VehicleCommandSink(self.io, self.control.lease_s, self._display_note)
+        )
         self.io.work_slot.attach(self.control.ticker)
         watch = OperatorWatch(
             self.control.ticker.wake_early, config.safety.pedal_override_margin_pct
@@ -526,6 +528,10 @@ class Daemon:
     def status_line(self) -> str:
         """One line for `systemctl status`: what the daemon is doing, in words."""
         return status_line(self.supervisor.latched_error, self.supervisor.snapshot(), self.core)
+
+    def _display_note(self) -> str:
+        """The panel's addition: the tablet's pairing code while none is paired."""
+        return "" if self.tablet is None else self.tablet.display_note()
 
     def _tablet_state(self) -> dict[str, Any]:
         """What the tablet draws: the mode, and the pallet source's map, plan and pose

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Awaitable, Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 from appliance.board_clients import BoardClients, make_board_clients
@@ -27,8 +27,10 @@ from appliance.config import VehicleConfig, parts
 from appliance.config.models import SimPlacement
 from appliance.core.core import CoreOutput
 from appliance.core.inputs import LinkCounts
+from appliance.core.output import printable
 from appliance.gnss_input import GnssInput
 from appliance.logs import get_logger
+from appliance.modes import Mode
 from appliance.sim_process import SimProcess
 from appliance.simulator import Simulator, build_simulator, lms111_dialect
 from appliance.supervisor import PermanentServiceError, ServiceSpec, beating_service
@@ -36,7 +38,9 @@ from appliance.timing import ControlSlot
 from appliance.topics import TopicRegistry
 from drivers.actuators.client import ActuatorClient
 from drivers.actuators.messages import (
+    MAX_DISPLAY_CHARS,
     BrakeCommand,
+    PanelCommand,
     SteeringCommand,
     SteeringMode,
     ThrottleCommand,
@@ -383,9 +387,22 @@ class VehicleCommandSink:
     of carrying on with one actuator path silently out of date.
     """
 
-    def __init__(self, io: VehicleIO, lease_s: float) -> None:
+    def __init__(
+        self, io: VehicleIO, lease_s: float, display_note: Callable[[], str] | None = None
+    ) -> None:
         self._io = io
         self._lease_s = lease_s
+        # What the daemon adds to the panel's text outside an error (the tablet's pairing
+        # code): shown at the vehicle, to whoever stands at it, and nowhere else.
+        self._display_note = display_note
+
+    def _panel(self, output: CoreOutput) -> PanelCommand:
+        note = self._display_note() if self._display_note is not None else ""
+        if not note or output.mode in (Mode.ERROR, Mode.ESTOP):
+            return output.panel
+        room = max(0, MAX_DISPLAY_CHARS - len(note) - 1)
+        text = f"{output.panel.display_text[:room]} {note}".strip()
+        return replace(output.panel, display_text=printable(text)[:MAX_DISPLAY_CHARS])
 
     def send(self, output: CoreOutput) -> None:
         errors: list[Exception] = []
@@ -395,7 +412,7 @@ class VehicleCommandSink:
                 (boards.steering, output.steering),
                 (boards.throttle, output.throttle),
                 (boards.brake, output.brake),
-                (boards.panel, output.panel),
+                (boards.panel, self._panel(output)),
             ]
             for client, command in orders:
                 try:

@@ -143,7 +143,7 @@ class TabletGate:
         return self._session is not None
 
     def unpair(self) -> None:
-        """End the session (the operator's `dbw tablet unpair`, or a new code asked for)."""
+        """End the session (a new code asked for; the daemon has no command for it yet)."""
         self._session = None
         self._release()
 

@@ -70,6 +70,11 @@ class TabletService:
     def state(self) -> dict[str, Any]:
         return self._state()
 
+    def display_note(self) -> str:
+        """For the operator panel's display: the code to pair with, while no tablet is
+        paired (the code is shown at the vehicle, so pairing needs someone there)."""
+        return "" if self.gate.paired else f"PAIR {self.gate.code}"
+
     # ---- for `dbw status` --------------------------------------------------------------
     def status(self) -> dict[str, Any]:
         now_s = self.clock()

@@ -114,11 +114,12 @@ async def test_the_tablet_guides_the_forklift_to_the_pallet_and_replay_gives_it_
         page = daemon.tablet.page
         await _until(lambda: page.bound_port is not None, 5.0, daemon, "the page listening")
         assert page.bound_port is not None
-        # Before the maps are merged there is nothing to select, and the source says so.
-        code, paired = await request(
-            page.bound_port, "/api/pair", {"code": daemon.tablet.gate.code}
-        )
+        # The code to pair with is on the operator panel's display, until a tablet pairs.
+        pairing = daemon.tablet.gate.code
+        await _until(lambda: f"PAIR {pairing}" in twins.display_text(), 5.0, daemon, "code")
+        code, paired = await request(page.bound_port, "/api/pair", {"code": pairing})
         assert code == 200
+        await _until(lambda: "PAIR" not in twins.display_text(), 5.0, daemon, "code gone")
         tablet = Tablet(page.bound_port, str(paired["token"]))
         await _until(lambda: bool(source.names), MERGE_TIMEOUT_S, daemon, "the maps merged")
         status, state = await tablet.post("/api/state", {})
