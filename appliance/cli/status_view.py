@@ -228,10 +228,38 @@ def _autopilot(doc: dict[str, Any]) -> list[str]:
             line += f", {pattern}" + (f" ({switches:.0f} switches)" if switches is not None else "")
         lines.append(line)
     lines += _route_lines(pilot, doc)
+    lines += _pallet_lines(pilot)
     refused, source = pilot.get("refused"), pilot.get("source")
     if isinstance(refused, str) and refused:
         name = clean_text(source) if isinstance(source, str) else "?"
         lines.append(f"autopilot ({name}): refuses: {clean_text(refused)}")
+    return lines
+
+
+def _pallet_lines(pilot: dict[Any, Any]) -> list[str]:
+    """The pallet source: the pose on the posts, the merge, the target and the approach."""
+    if "merged" not in pilot:
+        return []
+    lines = []
+    localization = as_dict(pilot.get("localization"))
+    pose = as_dict(localization.get("pose"))
+    x, y, h = (_finite(pose.get(k)) for k in ("x_m", "y_m", "yaw_deg"))
+    if x is not None and y is not None and h is not None:
+        posts = [clean_text(p, 24) for p in _list(localization.get("landmarks"))]
+        lines.append(
+            f"  pose on the posts: x {x:+.3f} m, y {y:+.3f} m, heading {h:+.2f} deg "
+            f"({', '.join(posts) or 'no post in view'})"
+        )
+    target, phase = pilot.get("target"), pilot.get("phase")
+    head = "pallet: " + (clean_text(target) if isinstance(target, str) else "none selected")
+    head += f", {clean_text(phase)}" if isinstance(phase, str) else ""
+    head += "" if pilot.get("merged") else " (maps not merged)"
+    approach = as_dict(pilot.get("approach"))
+    lateral, heading = _finite(approach.get("lateral_mm")), _finite(approach.get("heading_deg"))
+    distance = _finite(approach.get("distance_m"))
+    if lateral is not None and heading is not None and distance is not None:
+        head += f", {distance:.2f} m to go, lateral {lateral:+.1f} mm, heading {heading:+.2f} deg"
+    lines.append(head)
     return lines
 
 

@@ -346,3 +346,28 @@ def test_armed_look_ahead_runs_and_the_servo_torque_flag_show() -> None:
     odd = dict(doc, autopilot={"tuning": {"phase": 5, "run": "x", "describe": "\x1b[2J"}})
     line = line_with(render_status(odd), "look-ahead runs")
     assert "\x1b" not in line and "run " not in line
+
+
+def test_the_pallet_source_shows_the_pose_on_the_posts_the_target_and_the_approach() -> None:
+    pilot = {
+        "source": "pallet",
+        "localization": {
+            "status": "ok",
+            "reason": "",
+            "landmarks": ["landmark_1", "landmark_5"],
+            "pose": {"x_m": 0.91, "y_m": -2.5, "yaw_deg": 0.12},
+        },
+        "merged": True,
+        "target": "row_a.r0c1",
+        "phase": "final",
+        "approach": {"lateral_mm": 2.5, "heading_deg": -0.08, "distance_m": 0.42},
+    }
+    text = render_status({"mode": "speed_hold", "autopilot": pilot})
+    assert "pose on the posts: x +0.910 m, y -2.500 m, heading +0.12 deg" in text
+    assert "(landmark_1, landmark_5)" in text
+    assert "pallet: row_a.r0c1, final, 0.42 m to go, lateral +2.5 mm, heading -0.08 deg" in text
+    waiting = render_status(
+        {"autopilot": {"source": "pallet", "merged": False, "refused": "the maps are not merged"}}
+    )
+    assert "pallet: none selected (maps not merged)" in waiting
+    assert "autopilot (pallet): refuses: the maps are not merged" in waiting
