@@ -42,6 +42,7 @@ from appliance.live_view import LiveView
 from appliance.logs import get_logger
 from appliance.loop_monitor import LoopLag, LoopMonitor
 from appliance.operator_page import OperatorPage, scans_document
+from appliance.recording.replay import worker_map_metadata
 from appliance.recording.service import Recorder
 from appliance.sim.scanner_truth import with_simulated_scanners
 from appliance.supervisor import ServiceContext, ServiceSpec, ServiceState, Supervisor
@@ -181,6 +182,9 @@ class Daemon:
                 calibration_problem=problem,
                 clock=clock,
             )
+            if isinstance(self.core.autopilot, PalletAutopilot):
+                # The worker's map as the source read it: a replay elsewhere needs no file.
+                self.recorder.metadata.update(worker_map_metadata(self.core.autopilot))
             self.recorder.attach(self.io.topics)
             self.recorder.attach_raw(self.io.raw_sources())
             self.control.on_cycle.append(self.recorder.on_cycle)

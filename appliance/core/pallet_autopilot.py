@@ -100,9 +100,11 @@ class PalletAutopilot:
         *,
         scanners: Mapping[str, ScannerSetup] | None = None,
         worker: PalletMap | None = None,
+        worker_problem: str = "",
     ) -> None:
         """``scanners`` and ``worker`` in place of the calibration's and the vehicle
-        file's (the simulation, which draws its own)."""
+        file's (the simulation draws its own; a replay has the recorded map, or the
+        recorded ``worker_problem`` when there was none)."""
         self.config = config
         self.jobs: Jobs = jobs if jobs is not None else InlineJobs()
         self.setups = (
@@ -120,8 +122,8 @@ class PalletAutopilot:
         self.marker = Pose2D(marker.x_m, marker.y_m, math.radians(marker.yaw_deg))
         self.merge_params = merge_params(config)
         self.worker: PalletMap | None = worker
-        self.worker_problem = ""
-        if worker is None:
+        self.worker_problem = worker_problem
+        if worker is None and not worker_problem:
             try:
                 self.worker = load_worker_map(config.pallets.worker_map)
             except MapFileError as exc:

@@ -32,6 +32,8 @@ from appliance.config.loader import ConfigError, parse_config
 from appliance.core.core import ControlCore
 from appliance.core.inputs import ControlInputs
 from appliance.core.output import CoreOutput
+from appliance.core.pallet_autopilot import PalletAutopilot
+from appliance.mapping.pallets import PalletMap
 from appliance.recording.channels import (
     CYCLE_TOPIC,
     REQUEST_TOPIC,
@@ -122,7 +124,36 @@ def core_from_metadata(metadata: Mapping[str, Mapping[str, str]]) -> ControlCore
         raise ReplayError(f"the recorded vehicle file does not load here: {exc}") from exc
     calibration_meta = metadata.get("dbw.calibration", {})
     calibration = _calibration(config, calibration_meta.get("toml", ""))
-    return ControlCore(config, calibration, calibration_meta.get("problem", ""))
+    autopilot = None
+    worker_meta = metadata.get(WORKER_MAP_METADATA)
+    if worker_meta is not None and config.engagement.autopilot_source == "pallet":
+        worker = None
+        if worker_meta.get("json"):
+            try:
+                worker = decode(json.loads(worker_meta["json"]), PalletMap)
+            except (CodecError, ValueError) as exc:
+                raise ReplayError(f"the recorded worker's map does not load: {exc}") from exc
+        problem = str(worker_meta.get("problem", "")) or "no worker map was recorded"
+        autopilot = PalletAutopilot(
+            config, calibration, worker=worker, worker_problem="" if worker else problem
+        )
+    return ControlCore(config, calibration, calibration_meta.get("problem", ""), autopilot)
+
+
+WORKER_MAP_METADATA = "dbw.worker_map"
+
+
+def worker_map_metadata(source: PalletAutopilot) -> dict[str, dict[str, str]]:
+    """The `pallet` source's worker map for the recording's metadata (the map the file
+    held, or none and why), so a replay is the recorded run without the file."""
+    worker = source.worker
+    return {
+        WORKER_MAP_METADATA: {
+            "json": "" if worker is None else json.dumps(encode_fast(worker, PalletMap)),
+            "source": source.config.pallets.worker_map,
+            "problem": source.worker_problem,
+        }
+    }
 
 
 def _calibration(config: VehicleConfig, text: str) -> Calibration | None:
