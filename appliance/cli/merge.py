@@ -25,7 +25,7 @@ import click
 from appliance.cli.common import bad_input, draw_png
 
 if TYPE_CHECKING:
-    from appliance.mapping.cloud_pallets import CloudPallets
+    from appliance.mapping.map_file import MapRead
     from appliance.mapping.merge import MergeResult
     from appliance.mapping.pallets import Pallet, PalletMap
 
@@ -42,18 +42,22 @@ def _t0(text: str) -> tuple[float, float, float]:
 
 
 def read_map(
-    path: str, frame: str, origin_height_m: float, details: list[str]
-) -> tuple[PalletMap, CloudPallets | None]:
-    """The pallet map of a file (an object list, or a cloud's detected pallets), or exit 2
-    naming what is wrong with it."""
+    path: str,
+    frame: str,
+    origin_height_m: float,
+    details: list[str],
+    with_alternatives: bool = False,
+) -> MapRead:
+    """The pallet map of a file (an object list, or a cloud's detected pallets, with the
+    faces' alternative readings if asked), or exit 2 naming what is wrong with it."""
     from appliance.mapping.map_file import MapFileError, read_pallet_map
 
     try:
-        read = read_pallet_map(path, frame, origin_height_m)
+        read = read_pallet_map(path, frame, origin_height_m, with_alternatives)
     except MapFileError as exc:
         bad_input(str(exc))
     details.extend(read.notes)
-    return read.pallet_map, read.cloud
+    return read
 
 
 def _pallet_json(pallet: Pallet) -> dict[str, Any]:
@@ -229,22 +233,27 @@ def merge(
     """Merge WORKER_MAP into VEHICLE_MAP through their pallets (JSON object lists or PLY)."""
     from appliance.config.atomic import write_text_atomic
     from appliance.mapping.merge import MergeParams, MergeRefusal, merge_maps
+    from appliance.mapping.pallets import PalletMap
     from drivers.geometry import Pose2D
 
     x_m, y_m, theta_deg = _t0(t0_text)
     details: list[str] = []
-    vehicle, _ = read_map(vehicle_map, "vehicle", origin_height_m, details)
-    worker, _ = read_map(worker_map, "worker", origin_height_m, details)
+    vehicle = read_map(vehicle_map, "vehicle", origin_height_m, details).pallet_map
+    read = read_map(worker_map, "worker", origin_height_m, details, with_alternatives=True)
+    alternatives = read.alternatives
     params = MergeParams()
     if w_m2_per_rad2 is not None:
         params = replace(params, robust=replace(params.robust, w_m2_per_rad2=w_m2_per_rad2))
-    result = merge_maps(vehicle, worker, Pose2D(x_m, y_m, math.radians(theta_deg)), params)
+    t0 = Pose2D(x_m, y_m, math.radians(theta_deg))
+    result = merge_maps(vehicle, read.pallet_map, t0, params, alternatives)
+    # The pairs' worker indices run on into the alternatives (unnamed: shown by index).
+    worker = PalletMap(read.pallet_map.pallets + alternatives, "worker", worker_map)
     for line in details:
         click.echo(f"warning: {line}", err=True)
     if isinstance(result, MergeRefusal):
         message = (
             f"not merged: {result.reason} "
-            f"(vehicle map {len(vehicle)} pallets, worker map {len(worker)})"
+            f"(vehicle map {len(vehicle)} pallets, worker map {len(read.pallet_map)})"
         )
         if as_json:
             click.echo(json.dumps({"kind": "merge", "merged": False, "reason": result.reason}))
@@ -257,13 +266,13 @@ def merge(
             bad_input(f"{out_file}: cannot write it: {exc.strerror or exc}")
     report = result_json(result, vehicle, worker)
     if png_file is not None:
-        problem = draw_png(png_file, lambda plt: _draw(plt, result, worker))
+        problem = draw_png(png_file, lambda plt: _draw(plt, result, read.pallet_map))
         if problem is not None:
             click.echo(f"{png_file}: {problem}", err=True)
     if as_json:
         click.echo(json.dumps(report))
         return
-    _print_report(report, len(vehicle), len(worker))
+    _print_report(report, len(vehicle), len(read.pallet_map))
 
 
 def _print_report(report: dict[str, Any], vehicle_count: int, worker_count: int) -> None:

@@ -24,7 +24,7 @@ pauses the approach (the plan and what was seen are kept), pressing again goes o
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from functools import partial
 from typing import Any
 
@@ -101,6 +101,7 @@ class PalletAutopilot:
         scanners: Mapping[str, ScannerSetup] | None = None,
         worker: PalletMap | None = None,
         worker_problem: str = "",
+        worker_alternatives: Sequence[Pallet] = (),
     ) -> None:
         """``scanners`` and ``worker`` in place of the calibration's and the vehicle
         file's (the simulation draws its own; a replay has the recorded map, or the
@@ -123,9 +124,12 @@ class PalletAutopilot:
         self.merge_params = merge_params(config)
         self.worker: PalletMap | None = worker
         self.worker_problem = worker_problem
+        # A cloud's faces read as each kind: they may fix the merge, never join the map.
+        self.worker_alternatives = tuple(worker_alternatives)
         if worker is None and not worker_problem:
             try:
-                self.worker = load_worker_map(config.pallets.worker_map)
+                read = load_worker_map(config.pallets.worker_map)
+                self.worker, self.worker_alternatives = read.pallet_map, read.alternatives
             except MapFileError as exc:
                 self.worker_problem = str(exc)
         self.forget()
@@ -246,6 +250,7 @@ class PalletAutopilot:
                 self.marker,
                 self.merge_params,
                 self.config.pallets.kinds,
+                self.worker_alternatives,
             )
             self._submit(now_s, "merge", merge)
             self._next_merge_s = now_s + MERGE_RETRY_S

@@ -23,9 +23,13 @@ from appliance.guidance.pallet_plan import PalletPlanParams
 from appliance.localization.landmark_initial import LandmarkMap
 from appliance.localization.launcher_map import CylinderLandmark
 from appliance.mapping.association import RobustParams
-from appliance.mapping.map_file import MapFileError, pallet_map_from_bytes, read_pallet_map
+from appliance.mapping.map_file import (
+    MapFileError,
+    MapRead,
+    pallet_map_from_bytes,
+    read_pallet_map,
+)
 from appliance.mapping.merge import MergeParams
-from appliance.mapping.pallets import PalletMap
 from drivers.lms111.mounted import mount_pose
 
 BUILTIN_WORKER_MAP = "builtin:pallets"  # the simulated terminal's survey of `pallets`
@@ -108,14 +112,15 @@ def site_obstacles(config: VehicleConfig, clearance_m: float) -> tuple[Obstacle,
     return walls + posts
 
 
-def load_worker_map(spec: str) -> PalletMap:
-    """The worker's map the vehicle file names (raises `MapFileError` saying why not)."""
+def load_worker_map(spec: str) -> MapRead:
+    """The worker's map the vehicle file names, a cloud's alternative readings with it
+    (raises `MapFileError` saying why not)."""
     if not spec:
         raise MapFileError("no worker map: set pallets.worker_map in the vehicle file")
     if spec == BUILTIN_WORKER_MAP:
         data = resources.files("appliance.config").joinpath("maps/pallets-worker.json")
-        return pallet_map_from_bytes(data.read_bytes(), spec, "worker").pallet_map
-    return read_pallet_map(spec, "worker").pallet_map
+        return pallet_map_from_bytes(data.read_bytes(), spec, "worker")
+    return read_pallet_map(spec, "worker", with_alternatives=True)
 
 
 def merge_params(config: VehicleConfig) -> MergeParams:

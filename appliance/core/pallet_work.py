@@ -67,6 +67,7 @@ def merge_from_scans(
     marker: Pose2D,
     params: MergeParams,
     kinds: Sequence[PalletKind] = ALL_KINDS,
+    alternatives: Sequence[Pallet] = (),
 ) -> SiteMerge:
     """The pallets of ``views`` (both scanners', fused) as the vehicle's map, and the
     worker's merged into it from the floor marker's T0."""
@@ -74,7 +75,7 @@ def merge_from_scans(
     vehicle = PalletMap(fuse_pallets(seen, FUSE_GATE_M, FUSE_GATE_RAD), "vehicle")
     if not vehicle.pallets:
         return SiteMerge(vehicle, None, "the vehicle sees no pallet to merge the maps through")
-    merged = merge_maps(vehicle, worker, marker, params)
+    merged = merge_maps(vehicle, worker, marker, params, alternatives)
     if isinstance(merged, MergeRefusal):
         return SiteMerge(vehicle, None, merged.reason)
     return SiteMerge(vehicle, merged, "")
@@ -86,7 +87,7 @@ def merged_names(merged: MergeResult, worker: PalletMap) -> tuple[str, ...]:
     names: list[str] = []
     for i, entry in enumerate(merged.pallets):
         name = ""
-        if entry.worker_index is not None:
+        if entry.worker_index is not None and entry.worker_index < len(worker.pallets):
             name = worker.pallets[entry.worker_index].name
         if not name:
             name = f"vehicle-{i + 1}" if not entry.from_worker else f"worker-{i + 1}"

@@ -19,6 +19,7 @@ transform is added.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -60,6 +61,10 @@ __all__ = [
     "robust_transform",
     "solve_transform",
 ]
+
+
+# Two pallets' centres on the floor are at least a pallet's half width apart (0.4 m).
+SAME_PALLET_M = 0.4
 
 
 @dataclass(frozen=True)
@@ -169,10 +174,24 @@ def _better(candidate: RobustFit | MergeRefusal, incumbent: RobustFit) -> bool:
 
 
 def merge_maps(
-    vehicle: PalletMap, worker: PalletMap, t0: Pose2D, params: MergeParams
+    vehicle: PalletMap,
+    worker: PalletMap,
+    t0: Pose2D,
+    params: MergeParams,
+    alternatives: Sequence[Pallet] = (),
 ) -> MergeResult | MergeRefusal:
     """The vehicle's map completed by the worker's. ``t0`` is the floor marker's estimate
-    of the worker map's frame in the vehicle map's (the fit's ``T⁻¹``, not ``T``)."""
+    of the worker map's frame in the vehicle map's (the fit's ``T⁻¹``, not ``T``).
+
+    ``alternatives`` are the worker's readings of faces whose kind its map could not
+    tell (a 1.1 m face: a 1100x1100's side or a 1200x800's long one), one per kind: they
+    may pair with the vehicle's pallets and so fix T, but are never added themselves
+    (their indices follow the map's). With them, an added worker pallet on top of one
+    the vehicle sees (centres nearer than `SAME_PALLET_M`) is that pallet misread, and
+    is left out."""
+    definite = len(worker.pallets)
+    if alternatives:
+        worker = PalletMap(tuple(worker.pallets) + tuple(alternatives), worker.frame, worker.source)
     if not all(map(math.isfinite, t0)):
         return MergeRefusal("the floor marker's T0 is not finite")
     prior = (t0, t0_covariance(params.gate))
@@ -211,10 +230,15 @@ def merge_maps(
         MergedPallet(pallet, False, i, worker_of.get(i), None)
         for i, pallet in enumerate(vehicle.pallets)
     ]
-    for j, pallet in enumerate(worker.pallets):
+    for j, pallet in enumerate(worker.pallets[:definite]):
         if j in seen:
             continue
         moved = move_worker_pallet(pallet, fit)
+        if alternatives and any(
+            math.hypot(moved.x_m - m.pallet.x_m, moved.y_m - m.pallet.y_m) < SAME_PALLET_M
+            for m in merged
+        ):
+            continue
         area = reference_area(moved, params.reference_area_sigmas)
         merged.append(MergedPallet(moved, True, None, j, area))
     return MergeResult(tuple(merged), robust, vehicle.frame)

@@ -33,7 +33,7 @@ from appliance.core.core import ControlCore
 from appliance.core.inputs import ControlInputs
 from appliance.core.output import CoreOutput
 from appliance.core.pallet_autopilot import PalletAutopilot
-from appliance.mapping.pallets import PalletMap
+from appliance.mapping.pallets import Pallet, PalletMap
 from appliance.recording.channels import (
     CYCLE_TOPIC,
     REQUEST_TOPIC,
@@ -134,8 +134,20 @@ def core_from_metadata(metadata: Mapping[str, Mapping[str, str]]) -> ControlCore
             except (CodecError, ValueError) as exc:
                 raise ReplayError(f"the recorded worker's map does not load: {exc}") from exc
         problem = str(worker_meta.get("problem", "")) or "no worker map was recorded"
+        alternatives: tuple[Pallet, ...] = ()
+        if worker_meta.get("alternatives_json"):
+            try:
+                alternatives = decode(
+                    json.loads(worker_meta["alternatives_json"]), tuple[Pallet, ...]
+                )
+            except (CodecError, ValueError) as exc:
+                raise ReplayError(f"the recorded worker's map does not load: {exc}") from exc
         autopilot = PalletAutopilot(
-            config, calibration, worker=worker, worker_problem="" if worker else problem
+            config,
+            calibration,
+            worker=worker,
+            worker_problem="" if worker else problem,
+            worker_alternatives=alternatives,
         )
     return ControlCore(config, calibration, calibration_meta.get("problem", ""), autopilot)
 
@@ -150,6 +162,9 @@ def worker_map_metadata(source: PalletAutopilot) -> dict[str, dict[str, str]]:
     return {
         WORKER_MAP_METADATA: {
             "json": "" if worker is None else json.dumps(encode_fast(worker, PalletMap)),
+            "alternatives_json": json.dumps(
+                encode_fast(source.worker_alternatives, tuple[Pallet, ...])
+            ),
             "source": source.config.pallets.worker_map,
             "problem": source.worker_problem,
         }

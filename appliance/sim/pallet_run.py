@@ -36,6 +36,7 @@ from appliance.guidance.pallet_geometry import (
 from appliance.guidance.pallet_plan import PalletPlan
 from appliance.localization.localizer_params import ScannerSetup
 from appliance.mapping.cloud_pallets import detect_pallets
+from appliance.mapping.map_file import cloud_alternatives
 from appliance.mapping.merge import MergeParams
 from appliance.mapping.pallets import Pallet, PalletKind
 from appliance.mapping.scan_pallets import detect_scan_pallets
@@ -239,12 +240,14 @@ def run_pallet(config: VehicleConfig, params: PalletRunParams) -> PalletResult:
     truth_target = true_pallet(site, trial.target)
     # The worker's map: a walk with the terminal, its pallets through proximity points.
     errors = WORSE if trial.worse_worker_map else CONSUMER
+    alternatives: tuple[Pallet, ...] = ()
     if params.worker_form == "objects":
         listed = survey_objects(site, MARKER, errors, rng, viewpoints=walk_around(site))
         worker, worker_in_site = object_pallet_map(listed.objects), listed.t0_true
     else:
         cloud = survey(site, MARKER, walk_around(site), rng=rng, errors=errors)
         worker = detect_pallets(cloud.xyz_m, cloud.origins_m, frame="worker").pallet_map
+        alternatives = cloud_alternatives(cloud.xyz_m, cloud.origins_m)
         worker_in_site = cloud.t0_true
     scanners = _Scanners(config, site, params.seed)
     marker = config.pallets.worker_marker.model_copy(
@@ -253,7 +256,13 @@ def run_pallet(config: VehicleConfig, params: PalletRunParams) -> PalletResult:
     run_config = config.model_copy(
         update={"pallets": config.pallets.model_copy(update={"worker_marker": marker})}
     )
-    source = PalletAutopilot(run_config, jobs=InlineJobs(), scanners=scanners.setups, worker=worker)
+    source = PalletAutopilot(
+        run_config,
+        jobs=InlineJobs(),
+        scanners=scanners.setups,
+        worker=worker,
+        worker_alternatives=alternatives,
+    )
     source.merge_params = params.merge
     jobs = source.jobs
     vehicle = VehicleParams.from_config(config)
