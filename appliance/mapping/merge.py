@@ -63,7 +63,8 @@ __all__ = [
 ]
 
 
-# Two pallets' centres on the floor are at least a pallet's half width apart (0.4 m).
+# Two pallets on the floor stand at least a pallet's width apart, centre to centre (0.8 m
+# side by side): two readings nearer than half of that are one pallet.
 SAME_PALLET_M = 0.4
 
 
