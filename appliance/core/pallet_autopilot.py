@@ -138,8 +138,8 @@ class PalletAutopilot:
     def forget(self) -> None:
         """Everything but the worker's map: the source as it was built."""
         self.localizer.reset()
+        # The latest scan of each scanner of the setups, by name (fed once each).
         self._seen: dict[str, MountedScan] = {}
-        self._latest: dict[str, MountedScan] = {}  # by the scanner's name in the setups
         self.site: SiteMerge | None = None
         self.merge_problem = "the maps are not merged yet: the vehicle stands localized first"
         self.names: tuple[str, ...] = ()
@@ -218,7 +218,6 @@ class PalletAutopilot:
             self.localizer.update(
                 name, mounted.scan.ranges_m, angles, mounted.host_receive_time_s, now_s
             )
-            self._latest[name] = mounted
             fresh.append((name, mounted))
         return fresh
 
@@ -240,9 +239,9 @@ class PalletAutopilot:
         if self.site is None or self.site.result is None:
             if self.worker is None or now_s < self._next_merge_s:
                 return
-            if set(self._latest) != set(self.setups):
+            if set(self._seen) != set(self.setups):
                 return
-            views = tuple(self._view(name, m, pose) for name, m in self._latest.items())
+            views = tuple(self._view(name, m, pose) for name, m in self._seen.items())
             merge = partial(
                 merge_from_scans,
                 views,

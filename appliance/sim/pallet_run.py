@@ -28,10 +28,7 @@ from appliance.core.wish import AutopilotWish, Observation
 from appliance.guidance.pallet_approach import PalletPhase
 from appliance.guidance.pallet_final import face_errors
 from appliance.guidance.pallet_geometry import (
-    Obstacle,
-    disc_obstacle,
     nearest_entry_face,
-    wall_obstacle,
 )
 from appliance.guidance.pallet_plan import PalletPlan
 from appliance.localization.localizer_params import ScannerSetup
@@ -39,7 +36,6 @@ from appliance.mapping.cloud_pallets import detect_pallets
 from appliance.mapping.map_file import cloud_alternatives
 from appliance.mapping.merge import MergeParams
 from appliance.mapping.pallets import Pallet, PalletKind
-from appliance.mapping.scan_pallets import detect_scan_pallets
 from appliance.sim.scanner_errors import ScannerErrors, draw_scanner_errors, noise_seed
 from appliance.sim.scanner_model import RayCache, beam_angles_rad, render_scan
 from appliance.sim.site import Site
@@ -147,19 +143,6 @@ def _failure(
     )  # fmt: skip
 
 
-def site_obstacles(site: Site, clearance_m: float) -> tuple[Obstacle, ...]:
-    """The yard's walls and the posts, which the merged map (pallets only) does not hold."""
-    walls = tuple(
-        wall_obstacle(s.x0_m, s.y0_m, s.x1_m, s.y1_m, clearance_m, s.name)
-        for s in site.segments
-        if s.name.startswith("yard")
-    )
-    posts = tuple(
-        disc_obstacle(c.cx_m, c.cy_m, c.radius_m, clearance_m, c.name) for c in site.circles
-    )
-    return walls + posts
-
-
 def true_pallet(site: Site, name: str) -> Pallet:
     """The site's pallet ``name`` exactly, as a standard pallet."""
     solid = next(p for p in site.pallets if p.name == name)
@@ -208,12 +191,6 @@ class _Scanners:
             errors=self.errors[name], step_rad=self.step_rad, cache=self.caches[name],
         )  # fmt: skip
         return ranges
-
-    def pallets(self, name: str, ranges: np.ndarray, pose: Pose2D) -> tuple[Pallet, ...]:
-        """The pallets of one scan in the site frame, placed by ``pose`` (the estimate)."""
-        setup = self.setups[name]
-        corrected = np.where(ranges > 0.0, ranges - setup.range_offset_m, 0.0)
-        return detect_scan_pallets(corrected, self.angles, pose.compose(setup.mount)).pallets
 
 
 def _mounted(scanners: _Scanners, name: str, ranges: np.ndarray, t_s: float) -> MountedScan:

@@ -109,7 +109,7 @@ def true_pallet(name: str) -> Pallet:
 @cache
 def static_obstacles() -> tuple[Obstacle, ...]:
     """The yard's walls and the posts, grown by the plan's clearance."""
-    return pallet_run.site_obstacles(load_site("pallets"), plan_params().clearance_m)
+    return pallet_parts.site_obstacles(config(), plan_params().clearance_m)
 
 
 def worker_map(
