@@ -158,6 +158,7 @@ class ManeuverRunner:
         self.clock = clock
         self.samples = 0
         self.missed = 0
+        self._since = 0  # the next sample to ask the daemon for
 
     def say(self, text: str) -> None:
         self.out.write(text + "\n")
@@ -211,17 +212,13 @@ class ManeuverRunner:
     async def _watch(self) -> str:
         status = (await self.client.status()).get("status", {})
         maneuver = status.get("maneuver") or {}
-        since = int(maneuver.get("first_seq", 0))
+        self._since = int(maneuver.get("first_seq", 0))
         started = self.clock()
         shown = started
         while True:
-            reply = await self.client.call({"op": "samples", "since": since})
-            if reply.get("ok") is not True:
-                return f"the daemon refused the samples: {reply.get('error')}"
-            lost = int(reply.get("missed", 0))
-            if lost:
-                self.missed += lost
-                self.writer.mark("missed", samples=lost)
+            reply = await self._poll()
+            if isinstance(reply, str):
+                return reply
             batch = reply.get("samples") or []
             for sample in batch:
                 problem = sample_problem(sample, self.step) or self.step.update(sample)
@@ -229,7 +226,7 @@ class ManeuverRunner:
                 self.samples += 1
                 if problem is not None:
                     return f"aborted: {problem}"
-            since = int(reply.get("next", since))
+            self._since = int(reply.get("next", self._since))
             if not reply.get("active", False):
                 return "aborted: the daemon stopped the tap (restarted?)"
             if self.step.complete():
@@ -250,10 +247,35 @@ class ManeuverRunner:
             f"{eta_text(elapsed_s, progress.fraction)}"
         )
 
+    async def _poll(self) -> dict[str, Any] | str:
+        """The daemon's samples from ``_since`` on, or why it refused them; any it no
+        longer had are counted and marked in the file."""
+        reply = await self.client.call({"op": "samples", "since": self._since})
+        if reply.get("ok") is not True:
+            return f"the daemon refused the samples: {reply.get('error')}"
+        lost = int(reply.get("missed", 0))
+        if lost:
+            self.missed += lost
+            self.writer.mark("missed", samples=lost)
+        return reply
+
+    async def _drain(self) -> None:
+        """What the tap took between our last poll and its stop: the file holds every
+        sample the daemon tapped, as its flight recording replays them (the run is over:
+        they are kept, not judged)."""
+        while isinstance(reply := await self._poll(), dict):
+            batch = reply.get("samples") or []
+            self.writer.append(batch)
+            self.samples += len(batch)
+            self._since = int(reply.get("next", self._since))
+            if not batch:
+                return
+
     async def _stop(self, reason: str) -> None:
-        self.writer.mark("stopped", reason=reason)
         # The daemon gone, or we are: its tap is only a reader either way.
         with contextlib.suppress(ControlSocketError, asyncio.CancelledError, OSError):
             await asyncio.shield(
                 self.client.call({"op": "maneuver", "action": "stop", "step": self.step.name})
             )
+            await asyncio.shield(self._drain())
+        self.writer.mark("stopped", reason=reason)

@@ -18,7 +18,7 @@ import pytest
 from appliance.config import load_config
 from appliance.maneuvers.pot_map_step import PotMapStep
 from appliance.maneuvers.runner import ManeuverRunner, RefusedError
-from appliance.maneuvers.samples_file import SamplesWriter, header
+from appliance.maneuvers.samples_file import SamplesWriter, header, read_samples_file
 from appliance.maneuvers.steps import StepContext
 from tests.unit.maneuvers.test_steps import tap_samples
 
@@ -28,9 +28,11 @@ FRESH = {"age_s": 0.01, "stale": False}
 
 
 class FakeDaemon:
-    def __init__(self, samples: list[dict[str, Any]]) -> None:
+    def __init__(self, samples: list[dict[str, Any]], per_reply: int = 200) -> None:
         self.calls: list[str] = []
         self.samples = samples
+        self.per_reply = per_reply
+        self.stopped = False
         self.mode = "ready"
         self.closed = 0
 
@@ -51,15 +53,16 @@ class FakeDaemon:
     async def call(self, request: dict[str, Any]) -> dict[str, Any]:
         self.calls.append(f"{request['op']}:{request.get('action', request.get('since'))}")
         if request["op"] == "maneuver":
+            self.stopped = request["action"] == "stop"
             return {"ok": True, "accepted": True, "message": "ok"}
         since = int(request["since"])
-        chunk = self.samples[since : since + 200]
+        chunk = self.samples[since : since + self.per_reply]
         return {
             "ok": True,
             "samples": chunk,
             "next": since + len(chunk),
             "missed": 0,
-            "active": True,
+            "active": not self.stopped,
         }
 
     async def close(self) -> None:
@@ -83,7 +86,25 @@ def test_the_checks_run_again_after_the_answer_and_the_tap_is_stopped(tmp_path: 
     outcome = asyncio.run(runner(daemon, tmp_path, lambda _q: True).run())
     assert outcome.complete and outcome.reason == "complete", outcome
     assert daemon.calls[:3] == ["status", "status", "maneuver:start"]
-    assert daemon.closed == 1 and daemon.calls[-1] == "maneuver:stop"
+    assert daemon.closed == 1 and "maneuver:stop" in daemon.calls
+
+
+def test_what_the_tap_took_before_its_stop_is_in_the_file(tmp_path: Path) -> None:
+    # The daemon's tap goes on until the stop reaches it: the samples between the last
+    # poll and the stop are fetched after it, so the file is what the flight recording
+    # replays (the runtime tests compare the two).
+    samples = tap_samples()
+    late = [{**samples[-1], "seq": len(samples) + i} for i in range(120)]
+    daemon = FakeDaemon(samples + late, per_reply=50)
+    outcome = asyncio.run(runner(daemon, tmp_path, lambda _q: True).run())
+    assert outcome.complete, outcome
+    stop = daemon.calls.index("maneuver:stop")
+    after = daemon.calls[stop + 1 :]
+    assert after and all(call.startswith("samples:") for call in after)
+    assert after[-1] == f"samples:{len(samples) + len(late)}"  # drained to the end
+    written = read_samples_file(tmp_path / "s.jsonl", CONFIG.name)
+    assert [s["seq"] for s in written.samples] == list(range(len(samples) + len(late)))
+    assert outcome.samples == len(samples) + len(late)
 
 
 def test_a_change_while_the_technician_answers_refuses_the_start(tmp_path: Path) -> None:
