@@ -56,8 +56,8 @@ typecheck: venv
 # the wall clock: tests/conftest.py marks them) one at a time, so none is starved by another.
 UNIT_WORKERS ?= 2
 unit: venv
-	$(BIN)/pytest -n $(UNIT_WORKERS) -m "not vcan and not realtime"
-	$(BIN)/pytest -m realtime
+	$(BIN)/pytest -n $(UNIT_WORKERS) -m "not vcan and not realtime" --durations=25
+	$(BIN)/pytest -m realtime --durations=25
 
 # Hardware-in-the-loop tests over real SocketCAN vcan: the host's, else user-mode Linux
 # (Debian testing's, fetched, or the system's where that fails), else QEMU; chosen by probe.
