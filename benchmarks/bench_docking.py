@@ -11,7 +11,10 @@ and refuses), the same with the gate's certainty check off (what the uncalibrate
 would do at the troughs), and the ideal scanner.
 
 Run: ``python -m benchmarks.bench_docking [RUNS [WORKERS [CONDITION ...]]]`` (100 starts,
-2 workers and every condition by default; a condition by its name as printed).
+2 workers and every condition by default; a condition by its name as printed). The
+approaches share the cores there, so their real-time factor is not `dbw sim dock`'s:
+``python -m benchmarks.bench_docking speed [RUNS]`` runs approaches one at a time (5 by
+default), inline and with the scans rendered by a worker on the other core.
 
 Figures per condition: success rate (docked, both teeth inside their troughs, no tooth at
 a trough misaligned), the lateral error at the teeth and the heading error (median, p95,
@@ -97,8 +100,25 @@ def report(name: str, results: list[DockResult]) -> None:
     print(_figures("real-time factor", [r.real_time_factor for r in results], "x"))
 
 
+def speed(runs: int) -> None:
+    """`dbw sim dock`'s own speed: approaches one after another, nothing else running,
+    the scans rendered inline and by the forked worker (the command's default on two
+    cores); the same runs, so only the wall time differs."""
+    print(f"`dbw sim dock` alone, {runs} approaches one after another")
+    for label, worker in (("scans rendered inline (--one-core)", False), ("by a worker", True)):
+        results = [
+            _one((replace(CONDITIONS["realistic, calibrated"], render_worker=worker), *job))
+            for job in starts(runs)
+        ]
+        print(f"  {label}:")
+        print("  " + _figures("real-time factor", [r.real_time_factor for r in results], "x"))
+
+
 def main(argv: list[str] | None = None) -> None:
     args = sys.argv[1:] if argv is None else argv
+    if args[:1] == ["speed"]:
+        speed(int(args[1]) if len(args) > 1 else 5)
+        return
     runs = int(args[0]) if args else 100
     workers = int(args[1]) if len(args) > 1 else 2
     chosen = args[2:] or list(CONDITIONS)  # e.g. "realistic, calibrated" alone

@@ -10,20 +10,23 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import sys
 
 import click
 
 from appliance.cli.common import load_or_exit
 from appliance.config.models import VehicleKind
-from appliance.sim.dock_run import DockResult, DockRunParams, run_dock
+from appliance.sim.dock_run import DockResult, DockRunParams, run_dock, scan_latency_s
 
 
 def _finite_or_none(value: float, digits: int) -> float | None:
     return round(value, digits) if math.isfinite(value) else None
 
 
-def result_document(result: DockResult, params: DockRunParams) -> dict[str, object]:
+def result_document(
+    result: DockResult, params: DockRunParams, latency_s: float
+) -> dict[str, object]:
     return {
         "success": result.success,
         "reason": result.reason,
@@ -52,6 +55,8 @@ def result_document(result: DockResult, params: DockRunParams) -> dict[str, obje
         "seed": params.seed,
         "scanner": "ideal" if params.ideal_scanner else "realistic",
         "calibrated": params.calibrated,
+        "scan_latency_ms": round(latency_s * 1000.0, 3),
+        "scans_rendered": "by a worker" if params.render_worker else "inline",
     }
 
 
@@ -79,6 +84,12 @@ def result_document(result: DockResult, params: DockRunParams) -> dict[str, obje
     "and range offset (what `dbw calibrate scanners` finds).",
 )
 @click.option("--timeout-s", type=click.FloatRange(min=1.0), default=300.0, show_default=True)
+@click.option(
+    "--one-core",
+    is_flag=True,
+    help="Render the scans in this process too (by default, on a machine of two or more "
+    "cores, a forked worker renders them while this process localizes: the same run).",
+)
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object.")
 def dock(
     config_name: str,
@@ -89,6 +100,7 @@ def dock(
     ideal_scanner: bool,
     uncalibrated: bool,
     timeout_s: float,
+    one_core: bool,
     as_json: bool,
 ) -> None:
     """Dock the simulated flat-bed to the launcher and report how well the teeth went in."""
@@ -104,9 +116,10 @@ def dock(
         ideal_scanner=ideal_scanner,
         calibrated=not uncalibrated,
         timeout_s=timeout_s,
+        render_worker=not one_core and (os.cpu_count() or 1) > 1,
     )
     result = run_dock(config, params)
-    document = result_document(result, params)
+    document = result_document(result, params, scan_latency_s(config, params))
     if as_json:
         click.echo(json.dumps(document))
     else:

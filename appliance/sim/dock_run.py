@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections import deque
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -36,8 +37,9 @@ from appliance.localization.launcher_localizer import (
 )
 from appliance.perception.features import FeatureParams
 from appliance.perception.types import ScannerModel
+from appliance.sim.dock_scans import ScanRenderer, open_scans
 from appliance.sim.scanner_errors import ScannerErrors, draw_scanner_errors, noise_seed
-from appliance.sim.scanner_model import RayCache, beam_angles_rad, render_scan
+from appliance.sim.scanner_model import RayCache, beam_angles_rad
 from appliance.sim.site_file import load_site
 from appliance.sim.twins.pc104_core import PidSpeedController
 from appliance.sim.vehicle import VehicleCommand, VehicleParams, VehicleState, step
@@ -71,6 +73,11 @@ class DockRunParams:
     silence_at_s: float = math.inf
     site: str = "launcher"
     docking: DockingParams = field(default_factory=DockingParams)
+    # From the instant a scan is rendered at to its delivery to the localizer (None:
+    # half the scan period, the end of the sweep and the transfer; see `dock_scans`).
+    scan_latency_s: float | None = None
+    # Render the scans in a forked worker on another core (the same run, sooner).
+    render_worker: bool = False
 
 
 @dataclass(frozen=True)
@@ -119,6 +126,22 @@ def _nees(estimate: Pose2D, covariance: np.ndarray, truth: Pose2D) -> float:
     return sum(error[i] * inverse[i][j] * error[j] for i in range(3) for j in range(3))
 
 
+def scan_latency_s(config: VehicleConfig, params: DockRunParams) -> float:
+    """From a scan's instant to its delivery: as given, else half the scan period."""
+    if params.scan_latency_s is not None:
+        return params.scan_latency_s
+    return 0.5 / config.devices.lms111_left.scan_frequency_hz
+
+
+def _truth_at(history: deque[tuple[float, Pose2D]], t_s: float | None) -> Pose2D | None:
+    """The truth at ``t_s``, a time the loop stood at (scans are taken at world steps),
+    or None when it is older than the history."""
+    for when, truth in reversed(history):
+        if when == t_s:
+            return truth
+    return None
+
+
 def run_dock(config: VehicleConfig, params: DockRunParams) -> DockResult:
     started = time.perf_counter()
     site = load_site(params.site)
@@ -152,11 +175,13 @@ def run_dock(config: VehicleConfig, params: DockRunParams) -> DockResult:
     localizer = LauncherLocalizer(setups, LocalizerParams(features=features))
     controller = DockingController(dock)
     pid = PidSpeedController()
-    caches = {name: RayCache() for name in mounts}
-
     endpoint = config.devices.lms111_left
     scan_period_s = 1.0 / endpoint.scan_frequency_hz
+    latency_s = scan_latency_s(config, params)
     step_rad = math.radians(endpoint.angular_resolution_deg)
+    renderer = ScanRenderer(
+        site, mounts, errors, rngs, {name: RayCache() for name in mounts}, step_rad
+    )
     device_angles = beam_angles_rad(step_rad=step_rad)
     sensor_angles = device_angles - DEVICE_FORWARD_RAD
 
@@ -182,57 +207,73 @@ def run_dock(config: VehicleConfig, params: DockRunParams) -> DockResult:
     # The truth where the loop stands: set again after every world step.
     truth = platform(state)
     gap = docking_errors(truth, dock)[0]
-    while t_s < params.timeout_s:
-        for name in mounts:
-            silenced = name == params.silence_scanner and t_s >= params.silence_at_s
-            if t_s + 1e-9 >= next_scan[name] and not silenced:
-                ranges, _ = render_scan(
-                    site, t_s, truth, mounts[name], rng=rngs[name],
-                    errors=errors[name], step_rad=step_rad, cache=caches[name],
-                )  # fmt: skip
-                localizer.update(name, ranges, sensor_angles, t_s, t_s)
-                next_scan[name] += scan_period_s
-        if t_s + 1e-9 >= next_control:
-            next_control += control_dt
-            estimate = localizer.estimate(t_s)
-            if estimate.status is not LocalizationStatus.OK or estimate.centre_pose is None:
-                command_speed, pattern, front_rad, rear_rad = 0.0, MotionPattern.STOP, 0.0, 0.0
-                lost_since_s = t_s if lost_since_s is None else lost_since_s
-                if t_s - lost_since_s > params.lost_abort_s:
-                    reason = f"localization {estimate.status}: {estimate.reason}"
-                    break
-            else:
-                lost_since_s = None
-                if estimate.centre_covariance is not None and math.isfinite(
-                    nees := _nees(estimate.centre_pose, estimate.centre_covariance, truth)
-                ):
-                    near = gap <= NEAR_GAP_M
-                    nees_sums[near] += nees
-                    nees_counts[near] += 1
-                order = controller.update(estimate.centre_pose, estimate.centre_covariance, t_s)
-                command_speed, pattern = order.speed_mps, order.pattern
-                front_rad, rear_rad = order.front_steer_rad, order.rear_steer_rad
-                if order.refused:
-                    reason = order.refused
-                    break
-                if order.phase.value == "docked" and abs(state.speed_mps) < 1e-3:
-                    reason = "docked"
-                    break
-            throttle, brake, reverse = pid.update(command_speed, state.speed_mps, control_dt)
-            wish = VehicleCommand(
-                pattern=pattern,
-                front_steer_rad=front_rad,
-                rear_steer_rad=-rear_rad,  # the sim counts counter-steer positive
-                throttle_pct=throttle,
-                brake_pct=brake,
-                reverse=reverse,
-            )
-        state = step(state, wish, world_dt, vehicle)
-        t_s += world_dt
-        truth = platform(state)
-        gap, _, _, _ = docking_errors(truth, dock)
-        if gap <= dock.tooth_insertion_m and not teeth_inside(truth, dock):
-            contact = True
+    # Scans rendered and not yet delivered, oldest first: (delivery time, scanner, taken).
+    in_flight: deque[tuple[float, str, float]] = deque()
+    # The truth of the last second, by time: an estimate is judged against the truth at
+    # the time of its last scan, which reached it a latency later.
+    history: deque[tuple[float, Pose2D]] = deque(maxlen=max(1, round(params.world_hz)))
+    scans = open_scans(renderer, params.render_worker)
+    try:
+        while t_s < params.timeout_s:
+            history.append((t_s, truth))
+            # Asked for first: a worker renders while the localizer takes the older scans.
+            for name in mounts:
+                silenced = name == params.silence_scanner and t_s >= params.silence_at_s
+                if t_s + 1e-9 >= next_scan[name] and not silenced:
+                    scans.submit(name, t_s, truth)
+                    in_flight.append((t_s + latency_s, name, t_s))
+                    next_scan[name] += scan_period_s
+            while in_flight and t_s + 1e-9 >= in_flight[0][0]:
+                _, name, taken_s = in_flight.popleft()
+                localizer.update(name, scans.take(), sensor_angles, taken_s, t_s)
+            if t_s + 1e-9 >= next_control:
+                next_control += control_dt
+                estimate = localizer.estimate(t_s)
+                if estimate.status is not LocalizationStatus.OK or estimate.centre_pose is None:
+                    command_speed, pattern, front_rad, rear_rad = 0.0, MotionPattern.STOP, 0.0, 0.0
+                    lost_since_s = t_s if lost_since_s is None else lost_since_s
+                    if t_s - lost_since_s > params.lost_abort_s:
+                        reason = f"localization {estimate.status}: {estimate.reason}"
+                        break
+                else:
+                    lost_since_s = None
+                    then = _truth_at(history, estimate.t_s)
+                    if (
+                        estimate.centre_covariance is not None
+                        and then is not None
+                        and math.isfinite(
+                            nees := _nees(estimate.centre_pose, estimate.centre_covariance, then)
+                        )
+                    ):
+                        near = gap <= NEAR_GAP_M
+                        nees_sums[near] += nees
+                        nees_counts[near] += 1
+                    order = controller.update(estimate.centre_pose, estimate.centre_covariance, t_s)
+                    command_speed, pattern = order.speed_mps, order.pattern
+                    front_rad, rear_rad = order.front_steer_rad, order.rear_steer_rad
+                    if order.refused:
+                        reason = order.refused
+                        break
+                    if order.phase.value == "docked" and abs(state.speed_mps) < 1e-3:
+                        reason = "docked"
+                        break
+                throttle, brake, reverse = pid.update(command_speed, state.speed_mps, control_dt)
+                wish = VehicleCommand(
+                    pattern=pattern,
+                    front_steer_rad=front_rad,
+                    rear_steer_rad=-rear_rad,  # the sim counts counter-steer positive
+                    throttle_pct=throttle,
+                    brake_pct=brake,
+                    reverse=reverse,
+                )
+            state = step(state, wish, world_dt, vehicle)
+            t_s += world_dt
+            truth = platform(state)
+            gap, _, _, _ = docking_errors(truth, dock)
+            if gap <= dock.tooth_insertion_m and not teeth_inside(truth, dock):
+                contact = True
+    finally:
+        scans.close()
 
     truth = platform(state)
     gap, _, heading_err, teeth = docking_errors(truth, dock)
