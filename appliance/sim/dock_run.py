@@ -3,10 +3,12 @@
 The same perception, localizer and docking controller the daemon runs, stepped on a
 simulated clock against the simulated world: each scanner renders its scans (at its rate,
 the two staggered by half a period, from its true mount, with its drawn errors), the
-localizer takes each scan at its time, the controller runs at the control rate, and the
-PC104's speed PID (the twin's own) turns its wish into throttle and brake on the
+localizer takes each scan a latency after its instant, stamped with that instant (as the
+daemon receives a real scanner's: `dock_scans`), the controller runs at the control rate,
+and the PC104's speed PID (the twin's own) turns its wish into throttle and brake on the
 simulated flat-bed. No sockets, no event loop: so a hundred approaches take minutes, and
-a run is a pure function of its parameters and seed.
+a run is a pure function of its parameters and seed (with or without the worker that
+renders the scans on another core).
 
 What is judged is the truth, not the estimate: the teeth's lateral offsets in their
 troughs, the heading, the gap, and whether a tooth reached a trough misaligned (contact).

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import contextlib
 import multiprocessing
+import signal
 import traceback
 from collections import deque
 from dataclasses import dataclass
@@ -118,7 +119,8 @@ class WorkerScans:
             raise RuntimeError("the scan renderer exited without a scan") from None
         if reply[:1] != _RANGES:
             raise RuntimeError("the scan renderer failed:\n" + reply[1:].decode(errors="replace"))
-        return np.frombuffer(reply, dtype=np.float64, offset=1)
+        # A writable copy, as the inline renderer's own array is.
+        return np.frombuffer(reply, dtype=np.float64, offset=1).copy()
 
     def close(self) -> None:
         with contextlib.suppress(OSError):  # a worker already gone
@@ -132,6 +134,8 @@ class WorkerScans:
 
 def _serve(renderer: ScanRenderer, conn: Connection, parent_end: Connection) -> None:
     parent_end.close()  # so that the parent's exit is an end of file here
+    # Ctrl-C is the parent's to handle: it closes the worker (or its exit is our EOF).
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     while True:
         try:
             request = conn.recv_bytes()

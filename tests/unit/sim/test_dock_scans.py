@@ -55,6 +55,7 @@ def test_the_worker_renders_what_the_inline_renderer_does_in_order() -> None:
             expected, got = inline.take(), worker.take()
             assert got.shape == expected.shape == (1081,)
             assert np.array_equal(got, expected)  # bit for bit: the same noise draws
+            assert got.flags.writeable  # as the inline renderer's own array
             assert (got > 0.0).any()
     finally:
         worker.close()
