@@ -268,7 +268,8 @@ class ManeuverRunner:
             self.writer.append(batch)
             self.samples += len(batch)
             self._since = int(reply.get("next", self._since))
-            if not batch:
+            # A tap still running was not stopped by us (another step's): no end to wait for.
+            if not batch or reply.get("active", False):
                 return
 
     async def _stop(self, reason: str) -> None:
