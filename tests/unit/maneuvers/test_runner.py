@@ -124,3 +124,22 @@ def test_no_confirmation_no_start(tmp_path: Path) -> None:
     with pytest.raises(RefusedError, match="not confirmed"):
         asyncio.run(runner(daemon, tmp_path, lambda _q: False).run())
     assert daemon.calls == ["status"]
+
+
+class NeverStops(FakeDaemon):
+    """A tap the stop does not end (another step's): it keeps taking samples."""
+
+    async def call(self, request: dict[str, Any]) -> dict[str, Any]:
+        reply = await super().call(request)
+        self.stopped = False
+        if request["op"] == "samples":  # one more sample taken since every poll
+            self.samples.append({**self.samples[-1], "seq": len(self.samples)})
+        return reply
+
+
+def test_a_tap_that_goes_on_after_the_stop_is_not_chased(tmp_path: Path) -> None:
+    daemon = NeverStops(tap_samples(), per_reply=50)
+    outcome = asyncio.run(runner(daemon, tmp_path, lambda _q: True).run())
+    assert outcome.complete, outcome
+    stop = daemon.calls.index("maneuver:stop")
+    assert len(daemon.calls) - stop - 1 == 1  # one poll after the stop, then done
