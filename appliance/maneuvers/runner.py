@@ -220,13 +220,15 @@ class ManeuverRunner:
             if isinstance(reply, str):
                 return reply
             batch = reply.get("samples") or []
-            for sample in batch:
+            # Where each sample stands, so that an abort mid-batch leaves the rest to `_drain`.
+            first = int(reply.get("next", self._since + len(batch))) - len(batch)
+            for offset, sample in enumerate(batch, start=1):
                 problem = sample_problem(sample, self.step) or self.step.update(sample)
                 self.writer.append([sample])
                 self.samples += 1
+                self._since = first + offset
                 if problem is not None:
                     return f"aborted: {problem}"
-            self._since = int(reply.get("next", self._since))
             if not reply.get("active", False):
                 return "aborted: the daemon stopped the tap (restarted?)"
             if self.step.complete():

@@ -143,3 +143,16 @@ def test_a_tap_that_goes_on_after_the_stop_is_not_chased(tmp_path: Path) -> None
     assert outcome.complete, outcome
     stop = daemon.calls.index("maneuver:stop")
     assert len(daemon.calls) - stop - 1 == 1  # one poll after the stop, then done
+
+
+def test_an_abort_mid_batch_writes_every_sample_once(tmp_path: Path) -> None:
+    # The e-stop in the middle of a reply: the run ends there, the rest of that reply and
+    # what came after are fetched after the stop, and no sample is written twice.
+    samples = tap_samples()[:120]
+    samples[70] = {**samples[70], "mode": "estop"}
+    daemon = FakeDaemon(samples, per_reply=50)
+    outcome = asyncio.run(runner(daemon, tmp_path, lambda _q: True).run())
+    assert not outcome.complete and "ESTOP" in outcome.reason, outcome
+    written = read_samples_file(tmp_path / "s.jsonl", CONFIG.name)
+    assert [s["seq"] for s in written.samples] == list(range(120))
+    assert outcome.samples == 120
