@@ -20,6 +20,14 @@ from appliance.config.models import VehicleKind
 from appliance.sim.dock_run import DockResult, DockRunParams, run_dock, scan_latency_s
 
 
+def _usable_cores() -> int:
+    """The cores this process may run on (a container's or `taskset`'s share, not the
+    host's count where the platform says)."""
+    if hasattr(os, "sched_getaffinity"):
+        return len(os.sched_getaffinity(0))
+    return os.cpu_count() or 1
+
+
 def _finite_or_none(value: float, digits: int) -> float | None:
     return round(value, digits) if math.isfinite(value) else None
 
@@ -116,7 +124,7 @@ def dock(
         ideal_scanner=ideal_scanner,
         calibrated=not uncalibrated,
         timeout_s=timeout_s,
-        render_worker=not one_core and (os.cpu_count() or 1) > 1,
+        render_worker=not one_core and _usable_cores() > 1,
     )
     result = run_dock(config, params)
     document = result_document(result, params, scan_latency_s(config, params))
