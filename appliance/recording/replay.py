@@ -127,21 +127,9 @@ def core_from_metadata(metadata: Mapping[str, Mapping[str, str]]) -> ControlCore
     autopilot = None
     worker_meta = metadata.get(WORKER_MAP_METADATA)
     if worker_meta is not None and config.engagement.autopilot_source == "pallet":
-        worker = None
-        if worker_meta.get("json"):
-            try:
-                worker = decode(json.loads(worker_meta["json"]), PalletMap)
-            except (CodecError, ValueError) as exc:
-                raise ReplayError(f"the recorded worker's map does not load: {exc}") from exc
+        worker = _recorded_worker(worker_meta, "json", PalletMap, None)
         problem = str(worker_meta.get("problem", "")) or "no worker map was recorded"
-        alternatives: tuple[Pallet, ...] = ()
-        if worker_meta.get("alternatives_json"):
-            try:
-                alternatives = decode(
-                    json.loads(worker_meta["alternatives_json"]), tuple[Pallet, ...]
-                )
-            except (CodecError, ValueError) as exc:
-                raise ReplayError(f"the recorded worker's map does not load: {exc}") from exc
+        alternatives = _recorded_worker(worker_meta, "alternatives_json", tuple[Pallet, ...], ())
         autopilot = PalletAutopilot(
             config,
             calibration,
@@ -153,6 +141,16 @@ def core_from_metadata(metadata: Mapping[str, Mapping[str, str]]) -> ControlCore
 
 
 WORKER_MAP_METADATA = "dbw.worker_map"
+
+
+def _recorded_worker(meta: Mapping[str, str], key: str, kind: Any, absent: Any) -> Any:
+    """One part of the recorded worker's map (``absent`` when it was not recorded)."""
+    if not meta.get(key):
+        return absent
+    try:
+        return decode(json.loads(meta[key]), kind)
+    except (CodecError, ValueError) as exc:
+        raise ReplayError(f"the recorded worker's map does not load: {exc}") from exc
 
 
 def worker_map_metadata(source: PalletAutopilot) -> dict[str, dict[str, str]]:

@@ -27,9 +27,7 @@ from appliance.core.pallet_autopilot import PalletAutopilot
 from appliance.core.wish import AutopilotWish, Observation
 from appliance.guidance.pallet_approach import PalletPhase
 from appliance.guidance.pallet_final import face_errors
-from appliance.guidance.pallet_geometry import (
-    nearest_entry_face,
-)
+from appliance.guidance.pallet_geometry import nearest_entry_face
 from appliance.guidance.pallet_plan import PalletPlan
 from appliance.localization.localizer_params import ScannerSetup
 from appliance.mapping.cloud_pallets import detect_pallets
