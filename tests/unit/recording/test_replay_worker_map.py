@@ -7,11 +7,12 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from appliance.config import load_config
 from appliance.config.models import VehicleConfig
 from appliance.core.pallet_autopilot import PalletAutopilot
-from appliance.recording.replay import core_from_metadata, worker_map_metadata
+from appliance.recording.replay import ReplayError, core_from_metadata, worker_map_metadata
 from appliance.recording.service import session_metadata
 
 
@@ -55,3 +56,13 @@ def test_a_map_that_did_not_load_replays_as_not_loaded(tmp_path: Path) -> None:
     replayed = core_from_metadata(metadata).autopilot
     assert isinstance(replayed, PalletAutopilot)
     assert replayed.worker is None and replayed.worker_problem == source.worker_problem
+
+
+def test_a_damaged_recorded_map_is_a_replay_error_naming_it() -> None:
+    config = load_config("forklift-sim")
+    source = PalletAutopilot(config)
+    for key in ("json", "alternatives_json"):
+        metadata = _metadata(config, source)
+        metadata["dbw.worker_map"][key] = '{"pallets": [1, 2'  # cut short
+        with pytest.raises(ReplayError, match="the recorded worker's map does not load"):
+            core_from_metadata(metadata)
