@@ -22,6 +22,7 @@ from typing import TYPE_CHECKING, Any, NoReturn
 
 import click
 
+from appliance.cli.calibrate_maneuvers import add_maneuver_commands
 from appliance.cli.common import CONFIG_OPTION, EXIT_CONFIG_ERROR, draw_png, load_or_exit
 
 if TYPE_CHECKING:
@@ -456,3 +457,6 @@ def _draw(
     board.legend(loc="upper right", fontsize="small", markerscale=4)
     figure.tight_layout()
     return figure
+
+
+add_maneuver_commands(calibrate)

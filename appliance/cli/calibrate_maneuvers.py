@@ -36,7 +36,6 @@ from appliance.config.calibration_file import (
 )
 from appliance.control_client import ControlClient
 from appliance.control_protocol import ControlSocketError
-from appliance.maneuvers.from_recording import RecordingSamplesError, maneuver_samples
 from appliance.maneuvers.merge import MergeError, draft_values, merge_result
 from appliance.maneuvers.registry import STEP_CLASSES
 from appliance.maneuvers.report import FitReport
@@ -246,6 +245,9 @@ def _samples(
     """A step's samples from a samples file, or from a flight recording (``.mcap``: its
     session replayed, the tap run again over the same cycles; the last run of the step)."""
     if path.suffix == ".mcap":
+        # Replay brings the whole control core with it: imported only for a recording.
+        from appliance.maneuvers.from_recording import RecordingSamplesError, maneuver_samples
+
         try:
             vehicle, run = maneuver_samples(path, step_name)
         except (RecordingSamplesError, OSError) as exc:

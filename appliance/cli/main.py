@@ -8,25 +8,40 @@ import sys
 import click
 
 from appliance import __version__
-from appliance.cli.calibrate import calibrate
-from appliance.cli.calibrate_maneuvers import add_maneuver_commands
-from appliance.cli.calibration import calibration
-from appliance.cli.common import CONFIG_OPTION, load_or_exit
-from appliance.cli.config import config
-from appliance.cli.control import CONTROL_COMMANDS
-from appliance.cli.features import features
-from appliance.cli.gnss import gnss
-from appliance.cli.lms111 import lms111
-from appliance.cli.localize import localize
-from appliance.cli.merge import merge
-from appliance.cli.record import record, replay
-from appliance.cli.route import route
-from appliance.cli.route_record import route_record as _route_record  # noqa: F401 (registers)
-from appliance.cli.sim import sim
+from appliance.cli.common import CONFIG_OPTION
+from appliance.cli.lazy import LazyGroup
 from appliance.logs import LEVELS, configure_logging
 
+# Every command group but `run`, imported when it is run (see appliance/cli/lazy.py).
+COMMANDS = {
+    "calibrate": "appliance.cli.calibrate:calibrate",
+    "calibration": "appliance.cli.calibration:calibration",
+    "config": "appliance.cli.config:config",
+    "disengage": "appliance.cli.control:disengage",
+    "engage": "appliance.cli.control:engage",
+    "estop": "appliance.cli.control:estop",
+    "estop-reset": "appliance.cli.control:estop_reset",
+    "features": "appliance.cli.features:features",
+    "gnss": "appliance.cli.gnss:gnss",
+    "hold": "appliance.cli.control:hold",
+    "lms111": "appliance.cli.lms111:lms111",
+    "localize": "appliance.cli.localize:localize",
+    "merge": "appliance.cli.merge:merge",
+    "record": "appliance.cli.record:record",
+    "replay": "appliance.cli.record:replay",
+    "route": "appliance.cli.route:route",
+    "sim": "appliance.cli.sim:sim",
+    "speed-down": "appliance.cli.control:speed_down",
+    "speed-up": "appliance.cli.control:speed_up",
+    "status": "appliance.cli.control:status",
+}
 
-@click.group(context_settings={"help_option_names": ["-h", "--help"]})
+
+@click.group(
+    cls=LazyGroup,
+    lazy_subcommands=COMMANDS,
+    context_settings={"help_option_names": ["-h", "--help"]},
+)
 @click.version_option(__version__, "--version", prog_name="dbw")
 @click.option(
     "--log-level",
@@ -63,27 +78,11 @@ def cli(log_level: str, log_format: str) -> None:
 )
 def run(config_name: str | None, duration_s: float | None, record: bool | None) -> None:
     """Run the daemon (what the systemd unit starts)."""
+    from appliance.cli.common import load_or_exit
     from appliance.daemon import run_daemon
 
     vehicle = load_or_exit(config_name)
     sys.exit(run_daemon(vehicle, duration_s=duration_s, record=record))
-
-
-cli.add_command(config)
-cli.add_command(record)
-cli.add_command(replay)
-cli.add_command(lms111)
-cli.add_command(sim)
-cli.add_command(calibration)
-add_maneuver_commands(calibrate)
-cli.add_command(calibrate)
-cli.add_command(features)
-cli.add_command(localize)
-cli.add_command(merge)
-cli.add_command(gnss)
-cli.add_command(route)
-for _command in CONTROL_COMMANDS:
-    cli.add_command(_command)
 
 
 def main() -> None:

@@ -17,6 +17,7 @@ from typing import Any
 import click
 
 from appliance.cli.common import CONFIG_OPTION, bad_input, draw_png, load_or_exit
+from appliance.cli.lazy import LazyGroup
 from appliance.config import VehicleConfig
 from appliance.localization.local_frame import LocalFrame
 from appliance.routes import (
@@ -62,7 +63,7 @@ def _describe(route: Route) -> str:
     )
 
 
-@click.group()
+@click.group(cls=LazyGroup, lazy_subcommands={"record": "appliance.cli.route_record:route_record"})
 def route() -> None:
     """List, show, check and import the routes the autopilot follows (GeoJSON)."""
 

@@ -28,7 +28,7 @@ from pathlib import Path
 import click
 
 from appliance.cli.common import CONFIG_OPTION, bad_input, load_or_exit
-from appliance.cli.route import DIR_OPTION, EXIT_REFUSED, _store, report_check, route
+from appliance.cli.route import DIR_OPTION, EXIT_REFUSED, _store, report_check
 from appliance.config import VehicleConfig
 from appliance.localization.local_frame import LocalFrame
 from appliance.routes import Directions, Route, RouteFileError, write_route_file
@@ -94,7 +94,7 @@ def epoch_filter(config: VehicleConfig) -> EpochFilter:
     )
 
 
-@route.command("record")
+@click.command("record")
 @click.argument("name")
 @click.option(
     "--duration",

@@ -17,10 +17,7 @@ from pathlib import Path
 import click
 import structlog
 
-from appliance.cli.sim_dock import dock
-from appliance.cli.sim_pallet import pallet
-from appliance.cli.sim_survey import survey
-from appliance.cli.sim_track import track
+from appliance.cli.lazy import LazyGroup
 from appliance.config import ConfigError, VehicleConfig, load_config
 from appliance.config.atomic import write_text_atomic
 from appliance.config.calibration_file import write_calibration
@@ -181,7 +178,13 @@ def _stop_on_stdin_eof(loop: asyncio.AbstractEventLoop, stop: asyncio.Event) -> 
     loop.add_reader(fd, on_readable)
 
 
-@click.group(invoke_without_command=True)
+@click.group(
+    cls=LazyGroup,
+    lazy_subcommands={
+        name: f"appliance.cli.sim_{name}:{name}" for name in ("dock", "pallet", "survey", "track")
+    },
+    invoke_without_command=True,
+)
 @click.option("--config", "config_name", metavar="FILE|PROFILE", default="sim", show_default=True)
 @click.option(
     "--can-channel",
@@ -266,9 +269,3 @@ def sim(
             )
         )
     )
-
-
-sim.add_command(dock)
-sim.add_command(track)
-sim.add_command(survey)
-sim.add_command(pallet)

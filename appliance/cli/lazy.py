@@ -1,0 +1,44 @@
+"""A click group whose subcommands are imported only when one of them is run.
+
+Why: every `dbw` command used to import every other one first. The calibration steps
+pull in the replay of recordings and with it the whole control core, the pallet planner
+and scipy; `dbw status` on the vehicle PC took 2.5 s before it asked the daemon anything,
+and so did the simulated vehicle's process (`dbw sim`) each time the daemon started it.
+Here a subcommand is named with where it lives ("module:attribute") and imported when
+click asks for it: to run it, or to list it in ``--help`` (which therefore still imports
+them all).
+"""
+
+from __future__ import annotations
+
+import importlib
+from collections.abc import Mapping
+from typing import Any
+
+import click
+
+
+class LazyGroup(click.Group):
+    """`click.Group` with ``lazy_subcommands``: name to ``"package.module:attribute"``."""
+
+    def __init__(
+        self, *args: Any, lazy_subcommands: Mapping[str, str] | None = None, **kwargs: Any
+    ):
+        super().__init__(*args, **kwargs)
+        self.lazy_subcommands = dict(lazy_subcommands or {})
+
+    def list_commands(self, ctx: click.Context) -> list[str]:
+        return sorted({*super().list_commands(ctx), *self.lazy_subcommands})
+
+    def get_command(self, ctx: click.Context, cmd_name: str) -> click.Command | None:
+        if cmd_name in self.lazy_subcommands:
+            return self._load(cmd_name)
+        return super().get_command(ctx, cmd_name)
+
+    def _load(self, cmd_name: str) -> click.Command:
+        """Import the command; a wrong name here is a bug of this package, said as such."""
+        module_name, _, attribute = self.lazy_subcommands[cmd_name].partition(":")
+        command = getattr(importlib.import_module(module_name), attribute)
+        if not isinstance(command, click.Command):
+            raise TypeError(f"{module_name}:{attribute} is not a click command (for {cmd_name})")
+        return command

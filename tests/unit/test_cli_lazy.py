@@ -1,0 +1,79 @@
+"""`dbw` imports a command group only when it runs one (appliance/cli/lazy.py).
+
+Checked in fresh interpreters: what a module imports depends on what was imported
+before it, and this test process has imported everything.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import click
+import pytest
+from click.testing import CliRunner
+
+from appliance.cli.lazy import LazyGroup
+from appliance.cli.main import COMMANDS, cli
+
+# What only some commands need: the control core (replay, the calibration fits from a
+# recording), the pallet planner and scipy (which brings most of the rest).
+HEAVY = ("appliance.core.core", "appliance.recording.replay", "appliance.guidance.pallet_plan")
+
+
+def _imported_by(*modules: str) -> set[str]:
+    """The modules a fresh interpreter has after importing ``modules``."""
+    code = (
+        "import importlib, json, sys\n"
+        f"for name in {list(modules)!r}: importlib.import_module(name)\n"
+        "print(json.dumps(sorted(sys.modules)))\n"
+    )
+    done = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, timeout=60, check=True
+    )
+    return set(json.loads(done.stdout))
+
+
+@pytest.mark.parametrize(
+    ("modules", "fits"),
+    [
+        (("appliance.cli.main",), False),
+        (("appliance.cli.main", "appliance.cli.control"), False),  # dbw status, engage, ...
+        (("appliance.cli.main", "appliance.cli.sim"), False),  # the simulated vehicle
+        (("appliance.cli.main", "appliance.cli.calibrate"), True),  # its fits use scipy
+    ],
+)
+def test_a_command_does_not_import_what_only_others_need(
+    modules: tuple[str, ...], fits: bool
+) -> None:
+    imported = _imported_by(*modules)
+    assert not imported & set(HEAVY), sorted(imported & set(HEAVY))
+    assert fits or "scipy" not in imported
+
+
+def test_every_command_is_listed_loads_and_says_what_it_does() -> None:
+    result = CliRunner().invoke(cli, ["--help"])
+    assert result.exit_code == 0, result.output
+    context = click.Context(cli)
+    for name in COMMANDS:
+        command = cli.get_command(context, name)
+        assert command is not None and command.name == name
+        assert f"  {name} " in result.output  # listed, with its summary
+    assert "run" in cli.list_commands(context)
+
+
+def test_a_group_s_lazy_subcommands_run() -> None:
+    result = CliRunner().invoke(cli, ["route", "--help"])
+    assert result.exit_code == 0 and "record" in result.output
+    result = CliRunner().invoke(cli, ["calibrate", "--help"])
+    assert result.exit_code == 0 and "pot-map" in result.output and "scanners" in result.output
+    result = CliRunner().invoke(cli, ["sim", "dock", "--help"])
+    assert result.exit_code == 0 and "--start-x-m" in result.output
+
+
+def test_a_misnamed_command_is_a_clear_error() -> None:
+    group = LazyGroup("g", lazy_subcommands={"x": "appliance.cli.lazy:LazyGroup"})
+    with pytest.raises(TypeError, match="not a click command"):
+        group.get_command(click.Context(group), "x")
+    assert group.get_command(click.Context(group), "nothing") is None
