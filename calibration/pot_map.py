@@ -357,8 +357,9 @@ def _result(
     centre = fit.centre_counts
     if centre is None:
         reasons.append(
-            "the encoder never reads zero inside the swept range: give the centre from the "
-            "pot-centre step"
+            "no reading where the encoder reads zero could be located (it reads zero "
+            "nowhere in the swept range, or the map's zero did not settle): give the "
+            "centre from the pot-centre step"
         )
     elif not low < centre < high:
         reasons.append(f"the centre {centre:.1f} lies outside the valid range {low}..{high}")

@@ -9,7 +9,7 @@ from datetime import UTC, datetime
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from appliance.config.calibration import Calibration, CalibrationFile, SteeringCalibration
@@ -193,6 +193,12 @@ def test_the_fit_does_not_depend_on_the_order_of_the_samples(seed: int) -> None:
     step_rad=st.floats(0.8, 3.5),
     glitches=st.integers(0, 30),
 )
+# The pot railed before both locks, odd powers only: the map's zero went round a cycle of
+# five refits and where it stopped was taken for the centre (a map 7.5° off, accepted).
+@example(seed=37105654, gain=-296.0, backlash_rad=0.0, step_rad=3.5, glitches=16)
+# A rest where the pot stood on its rail: the glitch spikes off the rail made it a point,
+# 300 counts from the truth, and the map through it was 6° off at that end, accepted.
+@example(seed=35801792, gain=-290.527, backlash_rad=0.0813, step_rad=3.32, glitches=29)
 def test_the_map_is_monotonic_and_every_sample_is_counted_once(
     seed: int, gain: float, backlash_rad: float, step_rad: float, glitches: int
 ) -> None:
