@@ -6,9 +6,12 @@ then the ``realtime`` ones one at a time, because those run the daemon and its t
 the wall clock, where a test starved of CPU by its neighbour would see stale inputs that
 are not there. (Tried: the calibration maneuvers' long runs beside the others, two
 groups on two workers, 495 s -> 306 s; one run in three failed, a simulated pot's frames
-more than 150 ms apart: the twins are niced, and a neighbour daemon is not.) A runtime
-module that only runs commands on files or faster-than-real-time simulations says so
-with ``pytestmark = pytest.mark.cpu_bound``.
+more than 150 ms apart: the twins are niced, and a neighbour daemon is not. Tried too:
+the CPU-bound tests at nice 19 beside the realtime ones, 1,040 s -> 544 s; 13 of the 204
+realtime tests failed, the daemon's loop stalled ~100 ms at a time however nice the
+neighbours were: on these virtual machines a busy second core costs the first one too.)
+A runtime module that only runs commands on files or faster-than-real-time simulations
+says so with ``pytestmark = pytest.mark.cpu_bound``.
 
 Why no deadline: hypothesis fails an example that takes longer than 200 ms, and on the
 shared 2-core machines CI runs on the hypervisor takes up to 800 ms of CPU in one second.
