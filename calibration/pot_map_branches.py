@@ -22,11 +22,12 @@ Else only odd powers about the centre (the shape of a pot on a column), as many 
 distances from the centre the points cover, since a point and its mirror pin the same
 term: half-turn rests alone on a wheel of three turns each way lie at three distances.
 
-The centre is the pot-centre step's, or, without it, the reading where the map's encoder
-angle is zero, found by refitting about it until it stops moving. One round of outliers
-goes (a residual, on one sample's scale, beyond ``outlier_sigmas`` robust σ and beyond
-``min_outlier_rad``), then the degree is lowered until the polynomial is monotonic over
-the valid range, the calibration file's own condition.
+The centre is the pot-centre step's, or, without it, the reading where the map fitted
+about it reads encoder zero (a fixed point, found by the secant method; none found, no
+centre). One round of outliers goes (a residual, on one sample's scale, beyond
+``outlier_sigmas`` robust σ and beyond ``min_outlier_rad``), then the degree is lowered
+until the polynomial is monotonic over the valid range, the calibration file's own
+condition.
 """
 
 from __future__ import annotations
