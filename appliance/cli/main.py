@@ -8,7 +8,7 @@ import sys
 import click
 
 from appliance import __version__
-from appliance.cli.common import CONFIG_OPTION
+from appliance.cli.common import CONFIG_OPTION, load_or_exit
 from appliance.cli.lazy import LazyGroup
 from appliance.logs import LEVELS, configure_logging
 
@@ -78,7 +78,6 @@ def cli(log_level: str, log_format: str) -> None:
 )
 def run(config_name: str | None, duration_s: float | None, record: bool | None) -> None:
     """Run the daemon (what the systemd unit starts)."""
-    from appliance.cli.common import load_or_exit
     from appliance.daemon import run_daemon
 
     vehicle = load_or_exit(config_name)

@@ -14,6 +14,7 @@ import click
 import pytest
 from click.testing import CliRunner
 
+from appliance.cli.control import CONTROL_COMMANDS
 from appliance.cli.lazy import LazyGroup
 from appliance.cli.main import COMMANDS, cli
 
@@ -61,6 +62,8 @@ def test_every_command_is_listed_loads_and_says_what_it_does() -> None:
         assert command is not None and command.name == name
         assert f"  {name} " in result.output  # listed, with its summary
     assert "run" in cli.list_commands(context)
+    for command in CONTROL_COMMANDS:  # the daemon's commands, each under the top level
+        assert cli.get_command(context, str(command.name)) is command
 
 
 def test_a_group_s_lazy_subcommands_run() -> None:
