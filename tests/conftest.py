@@ -17,10 +17,17 @@ Why no deadline: hypothesis fails an example that takes longer than 200 ms, and 
 shared 2-core machines CI runs on the hypervisor takes up to 800 ms of CPU in one second.
 A property test checks properties, not speed; speed is measured in ``benchmarks/``. The
 health checks stay on: they catch strategies that generate too much or filter too much.
+
+Why SIGINT is put back: a shell without job control (``make test &``, nohup, some CI
+runners) starts a background job with SIGINT ignored, and every child inherits that, so a
+test that presses Ctrl-C on a command it started (``dbw gnss record``, a calibration
+step) waited in vain (seen: one run of the suite as a background job). The tests' children
+start as from a terminal instead, with Python's own handler.
 """
 
 from __future__ import annotations
 
+import signal
 import sys
 
 import pytest
@@ -30,6 +37,11 @@ from appliance.logs import configure_logging
 
 settings.register_profile("dbw", deadline=None)
 settings.load_profile("dbw")
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
 @pytest.fixture(autouse=True)

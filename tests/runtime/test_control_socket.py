@@ -811,14 +811,9 @@ async def test_cli_hold_presses_for_the_given_time_then_releases(
 
 async def test_cli_hold_releases_on_ctrl_c(short_tmp: Path) -> None:
     path = short_tmp / "control.sock"
-    # Ctrl-C as a terminal delivers it: the child starts with Python's own SIGINT handler.
-    # Without this it inherits this process's disposition, which is SIG_IGN when pytest
-    # runs as a background job of a non-interactive shell (nohup, some CI runners) and no
-    # earlier test has put a handler in place: the child would then never see the signal.
-    child = (
-        "import signal; signal.signal(signal.SIGINT, signal.default_int_handler); "
-        "from appliance.cli.control import hold; hold()"
-    )
+    # Ctrl-C as a terminal delivers it (tests/conftest.py: the child starts with Python's
+    # own SIGINT handler even when the suite runs as a background job).
+    child = "from appliance.cli.control import hold; hold()"
     async with serving(path) as served:
         proc = await asyncio.create_subprocess_exec(
             sys.executable,
