@@ -12,7 +12,9 @@ from appliance.cli.common import CONFIG_OPTION, load_or_exit
 from appliance.cli.lazy import LazyGroup
 from appliance.logs import LEVELS, configure_logging
 
-# Every command group but `run`, imported when it is run (see appliance/cli/lazy.py).
+# Every command group but `run`, imported when it is run (see appliance/cli/lazy.py), and
+# what `dbw --help` lists it with, so that listing them imports none (each is the
+# command's own first sentence: tests/unit/test_cli_lazy.py holds them to it).
 COMMANDS = {
     "calibrate": "appliance.cli.calibrate:calibrate",
     "calibration": "appliance.cli.calibration:calibration",
@@ -35,11 +37,35 @@ COMMANDS = {
     "speed-up": "appliance.cli.control:speed_up",
     "status": "appliance.cli.control:status",
 }
+SUMMARIES = {
+    "calibrate": "Measure calibrations on the vehicle: the steering maneuvers, the scanners.",
+    "calibration": "Check, show and write steering calibration files.",
+    "config": "Check and show vehicle configuration files.",
+    "disengage": "Hand everything back to the operator (the manual-override button); in "
+    "ERROR with the faults cleared, return to READY.",
+    "engage": "Engage automatic steering, as the panel's engage button does (READY to ENGAGED).",
+    "estop": "Emergency stop: brake fully and latch ESTOP until estop-reset.",
+    "estop-reset": "Complete the e-stop reset: leave ESTOP for READY at best (never engaged).",
+    "features": "The segments, lines and cylinders in each scan of an LMS111 recording.",
+    "gnss": "Probe and record a GNSS/INS receiver (NMEA 0183 on a serial port).",
+    "hold": "Press the hold-to-move button for SECONDS, printing progress, then release it.",
+    "lms111": "Probe, record and decode a SICK LMS111.",
+    "localize": "Replay two scanners' recordings through the launcher localizer; print the track.",
+    "merge": "Merge WORKER_MAP into VEHICLE_MAP through their pallets (JSON object lists or PLY).",
+    "record": "Recordings the daemon writes (MCAP; README, Recording and replay).",
+    "replay": "Run the recorded inputs of FILE through the core again and compare the outputs.",
+    "route": "List, show, check and import the routes the autopilot follows (GeoJSON).",
+    "sim": "Run the simulated vehicle and print its endpoints (and a config for `dbw run`).",
+    "speed-down": "The - button: lower the set speed one step.",
+    "speed-up": "The + button: raise the set speed one step (from ENGAGED, start speed hold).",
+    "status": "Show the daemon's mode, faults, inputs, commands and services.",
+}
 
 
 @click.group(
     cls=LazyGroup,
     lazy_subcommands=COMMANDS,
+    summaries=SUMMARIES,
     context_settings={"help_option_names": ["-h", "--help"]},
 )
 @click.version_option(__version__, "--version", prog_name="dbw")

@@ -16,18 +16,20 @@ from click.testing import CliRunner
 
 from appliance.cli.control import CONTROL_COMMANDS
 from appliance.cli.lazy import LazyGroup
-from appliance.cli.main import COMMANDS, cli
+from appliance.cli.main import COMMANDS, SUMMARIES, cli
 
 # What only some commands need: the control core (replay, the calibration fits from a
 # recording), the pallet planner and scipy (which brings most of the rest).
 HEAVY = ("appliance.core.core", "appliance.recording.replay", "appliance.guidance.pallet_plan")
 
 
-def _imported_by(*modules: str) -> set[str]:
-    """The modules a fresh interpreter has after importing ``modules``."""
+def _imported_by(*modules: str, then: str = "") -> set[str]:
+    """The modules a fresh interpreter has after importing ``modules`` (and running
+    ``then``)."""
     code = (
-        "import importlib, json, sys\n"
+        "import contextlib, importlib, io, json, sys\n"
         f"for name in {list(modules)!r}: importlib.import_module(name)\n"
+        f"{then}\n"
         "print(json.dumps(sorted(sys.modules)))\n"
     )
     done = subprocess.run(
@@ -53,10 +55,30 @@ def test_a_command_does_not_import_what_only_others_need(
     assert fits or "scipy" not in imported
 
 
+def test_dbw_help_lists_every_command_without_importing_one() -> None:
+    help_only = (
+        "with contextlib.redirect_stdout(io.StringIO()), contextlib.suppress(SystemExit):\n"
+        "    sys.modules['appliance.cli.main'].cli(['--help'])"
+    )
+    imported = _imported_by("appliance.cli.main", then=help_only)
+    commands = {target.partition(":")[0] for target in COMMANDS.values()}
+    assert not imported & commands, sorted(imported & commands)
+
+
+@pytest.mark.parametrize("name", sorted(COMMANDS))
+def test_each_summary_is_what_the_command_itself_says(name: str) -> None:
+    command = cli.get_command(click.Context(cli), name)
+    assert command is not None
+    summary = click.Command(name, help=SUMMARIES[name])
+    for limit in range(10, 200):  # as wide as any terminal lists it
+        assert summary.get_short_help_str(limit) == command.get_short_help_str(limit)
+
+
 def test_every_command_is_listed_loads_and_says_what_it_does() -> None:
     result = CliRunner().invoke(cli, ["--help"])
     assert result.exit_code == 0, result.output
     context = click.Context(cli)
+    assert SUMMARIES.keys() == COMMANDS.keys()
     for name in COMMANDS:
         command = cli.get_command(context, name)
         assert command is not None and command.name == name
