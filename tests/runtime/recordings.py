@@ -10,11 +10,14 @@ from __future__ import annotations
 
 import subprocess
 import sys
+import traceback
 from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
+from click.testing import CliRunner
 
+from appliance.cli.main import cli
 from appliance.config import load_config
 from appliance.sim.scanner_errors import ScannerErrors
 from appliance.sim.scanner_model import RayCache, render_scan
@@ -107,6 +110,17 @@ def dbw(*args: str) -> tuple[int, str, str]:
         check=False,
     )
     return done.returncode, done.stdout, done.stderr
+
+
+def dbw_here(*args: str) -> tuple[int, str, str]:
+    """`dbw` as a subprocess would run it, in this process (click's runner): for the many
+    cases of one command, where a subprocess's start would cost seconds each. An exception
+    that escaped the command is in stderr as the traceback a process would print."""
+    result = CliRunner().invoke(cli, ["--log-format", "json", *args])
+    err = result.stderr
+    if result.exception is not None and not isinstance(result.exception, SystemExit):
+        err += "".join(traceback.format_exception(result.exception))
+    return result.exit_code, result.stdout, err
 
 
 def header_only(path: Path) -> None:
