@@ -102,25 +102,24 @@ Word = tuple[float, float, float]
 
 def _lsl(a: float, b: float, d: float) -> Word | None:
     sa, sb, ca, cb = math.sin(a), math.sin(b), math.cos(a), math.cos(b)
-    p2 = 2.0 + d * d - 2.0 * math.cos(a - b) + 2.0 * d * (sa - sb)
-    if p2 < 0.0:
-        return None
+    # The straight is the line between the two circles' centres: its length as their
+    # distance, not as the textbook's 2 + d² − 2 cos(a − b) + ..., which loses a goal a
+    # few 1e-8 turning radii straight ahead to cancellation (a path shorter than the way).
     heading = math.atan2(cb - ca, d + sa - sb)
-    return _mod_tau(heading - a), math.sqrt(p2), _mod_tau(b - heading)
+    return _mod_tau(heading - a), math.hypot(d + sa - sb, cb - ca), _mod_tau(b - heading)
 
 
 def _rsr(a: float, b: float, d: float) -> Word | None:
     sa, sb, ca, cb = math.sin(a), math.sin(b), math.cos(a), math.cos(b)
-    p2 = 2.0 + d * d - 2.0 * math.cos(a - b) + 2.0 * d * (sb - sa)
-    if p2 < 0.0:
-        return None
-    heading = math.atan2(ca - cb, d - sa + sb)
-    return _mod_tau(a - heading), math.sqrt(p2), _mod_tau(heading - b)
+    heading = math.atan2(ca - cb, d - sa + sb)  # the straight's length as in `_lsl`
+    return _mod_tau(a - heading), math.hypot(d - sa + sb, ca - cb), _mod_tau(heading - b)
 
 
 def _lsr(a: float, b: float, d: float) -> Word | None:
     sa, sb, ca, cb = math.sin(a), math.sin(b), math.cos(a), math.cos(b)
-    p2 = -2.0 + d * d + 2.0 * math.cos(a - b) + 2.0 * d * (sa + sb)
+    # The centres' distance less the two radii, times it plus them: the tangent's square.
+    centres = math.hypot(d + sa + sb, ca + cb)
+    p2 = (centres - 2.0) * (centres + 2.0)
     if p2 < 0.0:
         return None
     p = math.sqrt(p2)
@@ -130,7 +129,8 @@ def _lsr(a: float, b: float, d: float) -> Word | None:
 
 def _rsl(a: float, b: float, d: float) -> Word | None:
     sa, sb, ca, cb = math.sin(a), math.sin(b), math.cos(a), math.cos(b)
-    p2 = d * d - 2.0 + 2.0 * math.cos(a - b) - 2.0 * d * (sa + sb)
+    centres = math.hypot(d - sa - sb, ca + cb)  # as in `_lsr`
+    p2 = (centres - 2.0) * (centres + 2.0)
     if p2 < 0.0:
         return None
     p = math.sqrt(p2)

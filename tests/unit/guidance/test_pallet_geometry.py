@@ -7,7 +7,7 @@ import math
 
 import numpy as np
 import pytest
-from hypothesis import given
+from hypothesis import example, given
 from hypothesis import strategies as st
 
 from appliance.guidance.arc_paths import (
@@ -37,6 +37,10 @@ angle = st.floats(-4.0, 4.0)
 
 
 @given(coordinate, coordinate, angle, coordinate, coordinate, angle, st.floats(0.3, 5.0))
+# A goal 6e-8 m straight ahead: rounding turns words into empty paths (RLR's full loop
+# into none), which land within the 1e-6 m every path is held to, as they should; the
+# shortest path may be that much shorter than the way there, not more.
+@example(-5.960464477539063e-08, -5.960464477539063e-08, 0.0, 0.0, -5.960464477539063e-08, 0.0, 3.0)
 def test_every_dubins_word_ends_at_the_goal(
     x0: float, y0: float, a0: float, x1: float, y1: float, a1: float, radius: float
 ) -> None:
@@ -53,7 +57,7 @@ def test_every_dubins_word_ends_at_the_goal(
         assert abs(math.remainder(pose.yaw_rad - a1, math.tau)) < 1e-6
     lengths = [sum(p.length_m for p in pieces) for pieces in paths]
     assert all(a <= b + 1e-9 for a, b in itertools.pairwise(lengths))
-    assert lengths[0] >= math.hypot(x1 - x0, y1 - y0) - 1e-9
+    assert lengths[0] >= math.hypot(x1 - x0, y1 - y0) - 1e-6
 
 
 def test_dubins_straight_ahead_is_the_distance_and_behind_is_a_loop() -> None:
