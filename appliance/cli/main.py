@@ -1,18 +1,15 @@
-"""The `dbw` group: logging options, `dbw run` (what the systemd unit starts), and every
-command group of this package registered under it."""
+"""The `dbw` group: logging options, and every command of this package (`dbw run`, what
+the systemd unit starts, among them) registered under it."""
 
 from __future__ import annotations
-
-import sys
 
 import click
 
 from appliance import __version__
-from appliance.cli.common import CONFIG_OPTION, load_or_exit
 from appliance.cli.lazy import LazyGroup
 from appliance.logs import LEVELS, configure_logging
 
-# Every command group but `run`, imported when it is run (see appliance/cli/lazy.py), and
+# Every command group, imported when it is run (see appliance/cli/lazy.py), and
 # what `dbw --help` lists it with, so that listing them imports none (each is the
 # command's own first sentence: tests/unit/test_cli_lazy.py holds them to it).
 COMMANDS = {
@@ -32,6 +29,7 @@ COMMANDS = {
     "record": "appliance.cli.record:record",
     "replay": "appliance.cli.record:replay",
     "route": "appliance.cli.route:route",
+    "run": "appliance.cli.run:run",
     "sim": "appliance.cli.sim:sim",
     "speed-down": "appliance.cli.control:speed_down",
     "speed-up": "appliance.cli.control:speed_up",
@@ -55,6 +53,7 @@ SUMMARIES = {
     "record": "Recordings the daemon writes (MCAP; README, Recording and replay).",
     "replay": "Run the recorded inputs of FILE through the core again and compare the outputs.",
     "route": "List, show, check and import the routes the autopilot follows (GeoJSON).",
+    "run": "Run the daemon (what the systemd unit starts).",
     "sim": "Run the simulated vehicle and print its endpoints (and a config for `dbw run`).",
     "speed-down": "The - button: lower the set speed one step.",
     "speed-up": "The + button: raise the set speed one step (from ENGAGED, start speed hold).",
@@ -86,28 +85,6 @@ SUMMARIES = {
 def cli(log_level: str, log_format: str) -> None:
     """dbw-applique: drive-by-wire appliqué runtime for retrofitted heavy vehicles."""
     configure_logging(log_level, json=None if log_format == "auto" else log_format == "json")
-
-
-@cli.command()
-@CONFIG_OPTION
-@click.option(
-    "--duration-s",
-    type=click.FloatRange(min=0.0, min_open=True),
-    default=None,
-    help="Stop cleanly after this many seconds (demos and tests). Default: run until signalled.",
-)
-@click.option(
-    "--record/--no-record",
-    default=None,
-    help="Record to MCAP (recording.directory) or not. Default: the vehicle file's "
-    "recording.enabled (on for a vehicle, off for the built-in simulated ones).",
-)
-def run(config_name: str | None, duration_s: float | None, record: bool | None) -> None:
-    """Run the daemon (what the systemd unit starts)."""
-    from appliance.daemon import run_daemon
-
-    vehicle = load_or_exit(config_name)
-    sys.exit(run_daemon(vehicle, duration_s=duration_s, record=record))
 
 
 def main() -> None:
