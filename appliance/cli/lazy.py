@@ -44,24 +44,21 @@ class LazyGroup(click.Group):
         return super().get_command(ctx, cmd_name)
 
     def format_commands(self, ctx: click.Context, formatter: click.HelpFormatter) -> None:
-        """click's list of commands, where a lazy command with a summary is not imported."""
-        rows: list[tuple[str, str | None, click.Command | None]] = []
+        """click's list of commands, where a lazy command with a summary is not imported
+        (a stand-in carrying the summary is asked for its short help instead)."""
+        rows: list[tuple[str, click.Command]] = []
         for name in self.list_commands(ctx):
-            summary = self.summaries.get(name) if name in self.lazy_subcommands else None
-            command = None if summary is not None else self.get_command(ctx, name)
-            if summary is not None or (command is not None and not command.hidden):
-                rows.append((name, summary, command))
+            if name in self.lazy_subcommands and name in self.summaries:
+                rows.append((name, click.Command(name, help=self.summaries[name])))
+            elif (command := self.get_command(ctx, name)) is not None and not command.hidden:
+                rows.append((name, command))
         if not rows:
             return
-        limit = formatter.width - 6 - max(len(name) for name, _, _ in rows)
-        lines = [
-            (name, click.Command(name, help=summary).get_short_help_str(limit))
-            if summary is not None
-            else (name, command.get_short_help_str(limit) if command is not None else "")
-            for name, summary, command in rows
-        ]
+        limit = formatter.width - 6 - max(len(name) for name, _ in rows)
         with formatter.section("Commands"):
-            formatter.write_dl(lines)
+            formatter.write_dl(
+                [(name, command.get_short_help_str(limit)) for name, command in rows]
+            )
 
     def _load(self, cmd_name: str) -> click.Command:
         """Import the command; a wrong name here is a bug of this package, said as such."""
