@@ -1,8 +1,7 @@
 """The asyncio side of a GNSS/INS receiver: a serial read-feed-drain loop around `NmeaReceiver`.
 
-The port is opened with pyserial (baud rate, raw 8N1, exclusive lock) and served with
-``loop.add_reader`` on its non-blocking descriptor, as the actuator boards are: no thread, no
-executor, so each sentence is parsed the moment its line end arrives and handed on stamped
+The port is served as the actuator boards' are (`drivers.serial_link`: no thread, no
+executor), so each sentence is parsed the moment its line end arrives and handed on stamped
 with that receive time (the fix estimate subtracts the receiver's latency from it). The client
 sends nothing: a receiver is configured once, with its own tool, and then only talks.
 
@@ -24,10 +23,7 @@ with the events to the safety layer.
 
 from __future__ import annotations
 
-import asyncio
-import contextlib
 import math
-import os
 import time
 from collections import Counter
 from collections.abc import Callable, Mapping
@@ -42,7 +38,7 @@ from structlog.typing import FilteringBoundLogger
 from drivers.gnss.nmea import NmeaReceiver, Reject
 from drivers.gnss.sentences import GgaFix, GstError, Heading, NmeaEvent, RmcFix, VtgVelocity
 from drivers.ptylink import SIM_PORT_PREFIX
-from drivers.wakeup import Wakeup
+from drivers.serial_link import SerialLink, open_serial
 
 log: FilteringBoundLogger = structlog.get_logger(component="gnss")
 
@@ -50,7 +46,6 @@ log: FilteringBoundLogger = structlog.get_logger(component="gnss")
 # are set to for 10-20 Hz output with several sentences per epoch.
 BAUDRATES_BPS: Final = (4800, 9600, 19200, 38400, 57600, 115_200, 230_400, 460_800, 921_600)
 DEFAULT_BAUDRATE_BPS: Final = 115_200
-READ_CHUNK_BYTES: Final = 4096
 BEAT_PERIOD_S: Final = 0.2  # well inside the supervisor's driver heartbeat deadline
 
 
@@ -77,21 +72,13 @@ def open_port(port: str, baudrate_bps: int) -> Any:
     """
     if baudrate_bps not in BAUDRATES_BPS:
         raise ValueError(f"baud rate {baudrate_bps} is not one of {BAUDRATES_BPS}")
-    handle = serial.Serial(
+    return open_serial(
         port,
         baudrate_bps,
         bytesize=serial.EIGHTBITS,
         parity=serial.PARITY_NONE,
         stopbits=serial.STOPBITS_ONE,
-        timeout=0,
-        exclusive=True,
     )
-    try:
-        handle.reset_input_buffer()  # whatever queued while nobody listened is old news
-    except (serial.SerialException, OSError):
-        handle.close()
-        raise
-    return handle
 
 
 @dataclass(frozen=True)
@@ -120,8 +107,16 @@ class GnssHealth:
         return self.connected and not self.stale
 
 
-class GnssClient:
-    """One receiver on one serial port; ``run(beat)`` is the supervised service."""
+class GnssClient(SerialLink):
+    """One receiver on one serial port; ``run(beat)`` is the supervised service.
+
+    ``beat`` (see `SerialLink.run`) is called every `BEAT_PERIOD_S` at least while events
+    arrive in time; ``beat_while_reconnecting=True`` suits a daemon that judges the fix by
+    its age in the safety layer rather than by service restarts.
+    """
+
+    stale_event = "nmea_stale"
+    fresh_event = "nmea_fresh"
 
     def __init__(
         self,
@@ -144,47 +139,33 @@ class GnssClient:
             raise ValueError(f"{port!r} must be resolved to a tty path (the twin's port_path)")
         if baudrate_bps not in BAUDRATES_BPS:
             raise ValueError(f"baud rate {baudrate_bps} is not one of {BAUDRATES_BPS}")
-        self.port = port
-        self.baudrate_bps = baudrate_bps
-        self.max_age_s = max_age_s
-        self.backoff_initial_s = backoff_initial_s
-        self.backoff_cap_s = backoff_cap_s
-        self.beat_while_reconnecting = beat_while_reconnecting
+        super().__init__(
+            port,
+            baudrate_bps=baudrate_bps,
+            max_age_s=max_age_s,
+            backoff_initial_s=backoff_initial_s,
+            backoff_cap_s=backoff_cap_s,
+            beat_while_reconnecting=beat_while_reconnecting,
+            clock=clock,
+        )
         self._publish = publish
-        self._tap = tap
-        # Called with every chunk of bytes as read, and its receive time (the recorder).
-        self.raw_listeners: list[Callable[[bytes, float], None]] = []
-        self._on_link = on_link
-        self._clock = clock
+        if tap is not None:
+            self.raw_listeners.append(tap)
+        self.on_link = on_link
         self.receiver = NmeaReceiver()
         self._earlier_rejects: Counter[str] = Counter()  # of the receivers of past connections
         self._earlier_garbage_bytes = 0
         self._earlier_bad: tuple[bytes, str] | None = None
-        self._serial: Any = None
-        self._fd: int | None = None
-        self._lost = Wakeup()
-        self._lost_reason = ""
-        self._connected_s = 0.0
         self._last_event_s = -math.inf
-        self._stale_reported = False
-        self._window_start_s = clock()
-        self._window_events = 0
-        self._events_per_s = 0.0
         self.events_by_sentence: Counter[str] = Counter()
         self.bytes_received = 0
-        self.reconnects = 0
-        self.last_error = ""
 
     # ---- what the rest of the daemon calls -----------------------------------------------
-    @property
-    def connected(self) -> bool:
-        return self._fd is not None
-
-    def last_event_age_s(self, now_s: float) -> float:
+    def age_s(self, now_s: float) -> float:
         return now_s - self._last_event_s
 
-    def is_stale(self, now_s: float) -> bool:
-        return self.last_event_age_s(now_s) > self.max_age_s
+    def last_event_age_s(self, now_s: float) -> float:
+        return self.age_s(now_s)
 
     def rejects(self) -> Counter[str]:
         """Rejected lines by reason, over every connection so far."""
@@ -203,7 +184,7 @@ class GnssClient:
             connected=self.connected,
             stale=self.is_stale(now),
             last_event_age_s=self.last_event_age_s(now),
-            events_per_s=self._events_per_s,
+            events_per_s=self._rate_per_s,
             events_ok=sum(self.events_by_sentence.values()),
             events_by_sentence=MappingProxyType(dict(self.events_by_sentence)),
             rejects=MappingProxyType(dict(rejects)),
@@ -216,64 +197,15 @@ class GnssClient:
             last_error=self.last_error,
         )
 
-    async def run(self, beat: Callable[[], None]) -> None:
-        """Connect, serve, reconnect, until cancelled.
-
-        ``beat`` is called (every `BEAT_PERIOD_S` at least) while events arrive in time. A
-        receiver that is unplugged or silent stops the heartbeat and the supervisor decides;
-        ``beat_while_reconnecting=True`` beats through outages instead, for a daemon that
-        judges the fix by its age in the safety layer rather than by service restarts.
-        """
-        backoff_s = self.backoff_initial_s
-        down_since_s: float | None = None
-        attempts = 0
-        try:
-            while True:
-                try:
-                    self._open()
-                except (serial.SerialException, OSError) as exc:
-                    attempts += 1
-                    self.last_error = f"open failed: {exc}"
-                    if attempts == 1 and down_since_s is None:
-                        self._logger().warning("link_unavailable", error=str(exc))
-                    else:
-                        self._logger().debug("link_retry", attempt=attempts, error=str(exc))
-                    if self.beat_while_reconnecting:
-                        beat()
-                    await asyncio.sleep(backoff_s)
-                    backoff_s = min(self.backoff_cap_s, backoff_s * 2.0)
-                    continue
-                if down_since_s is not None:
-                    self.reconnects += 1
-                    down_s = round(self._clock() - down_since_s, 3)
-                    self._logger().info("link_restored", down_s=down_s, attempts=attempts + 1)
-                else:
-                    self._logger().info("link_open", baudrate_bps=self.baudrate_bps)
-                if self._on_link is not None:
-                    self._on_link(True, "open", self._connected_s)
-                backoff_s, attempts = self.backoff_initial_s, 0
-                reason = await self._serve(beat)
-                self._close()
-                self.last_error = reason
-                down_since_s = self._clock()
-                self._logger().warning("link_lost", error=reason)
-                if self._on_link is not None:
-                    self._on_link(False, reason, down_since_s)
-        finally:
-            self._close()
-
-    # ---- transport -----------------------------------------------------------------------
+    # ---- the link -------------------------------------------------------------------------
     def _logger(self) -> FilteringBoundLogger:
         return log.bind(port=self.port)
 
-    def _open(self) -> None:
-        port = open_port(self.port, self.baudrate_bps)
-        self._serial = port
-        self._fd = port.fileno()
+    def _open_port(self) -> Any:
+        return open_port(self.port, self.baudrate_bps)
+
+    def _opened(self) -> None:
         self._new_receiver()
-        self._lost.clear()
-        self._connected_s = self._clock()
-        asyncio.get_running_loop().add_reader(self._fd, self._on_readable)
 
     def _new_receiver(self) -> None:
         """A fresh parser per connection (a line cut by the unplug must not be glued to the
@@ -285,82 +217,17 @@ class GnssClient:
             self._earlier_bad = (old.last_bad_line, str(old.last_bad_reason))
         self.receiver = NmeaReceiver()
 
-    def _close(self) -> None:
-        if self._fd is not None:
-            asyncio.get_running_loop().remove_reader(self._fd)
-            self._fd = None
-        if self._serial is not None:
-            with contextlib.suppress(serial.SerialException, OSError):
-                self._serial.close()  # the device may be gone already
-            self._serial = None
-
-    def _mark_lost(self, reason: str) -> None:
-        if self._fd is not None:
-            # Stop the callback now: a hung-up tty stays readable (EOF) forever.
-            asyncio.get_running_loop().remove_reader(self._fd)
-        self._lost_reason = reason
-        self._lost.set()
-
-    def _on_readable(self) -> None:
-        fd = self._fd
-        if fd is None or self._lost.is_set():
-            return
-        try:
-            data = os.read(fd, READ_CHUNK_BYTES)
-        except BlockingIOError:
-            return
-        except OSError as exc:
-            self._mark_lost(f"read failed: {exc}")
-            return
-        if not data:
-            self._mark_lost("device disconnected (EOF)")
-            return
-        now_s = self._clock()
+    def _received(self, data: bytes, now_s: float) -> None:
         self.bytes_received += len(data)
-        if self._tap is not None:
-            self._tap(data, now_s)
-        for listener in self.raw_listeners:
-            listener(data, now_s)
         receiver = self.receiver
         receiver.receive_data(data)
         while (event := receiver.next_event()) is not None:
             self.events_by_sentence[sentence_name(event)] += 1
-            self._window_events += 1
+            self._counted()
             self._last_event_s = now_s
             self._publish(event, now_s)
-        if self._stale_reported and self._last_event_s == now_s:
-            self._stale_reported = False
-            self._logger().info("nmea_fresh")
+        if self._last_event_s == now_s:
+            self._fresh()
 
-    # ---- the served connection -----------------------------------------------------------
-    async def _serve(self, beat: Callable[[], None]) -> str:
-        while True:
-            now_s = self._clock()
-            self._update_rate(now_s)
-            stale = self._check_stale(now_s)
-            if self._lost.is_set():
-                return self._lost_reason
-            if not stale or self.beat_while_reconnecting:
-                beat()
-            wake_s = now_s + BEAT_PERIOD_S
-            if not stale:  # wake exactly when the newest event goes stale, to log it on time
-                wake_s = min(wake_s, self._last_event_s + self.max_age_s)
-            await self._lost.wait(max(0.0, wake_s - self._clock()) + 1e-4)
-
-    def _check_stale(self, now_s: float) -> bool:
-        stale = self.is_stale(now_s)
-        if stale and not self._stale_reported and now_s - self._connected_s > self.max_age_s:
-            self._stale_reported = True
-            age_s = self.last_event_age_s(now_s)
-            self._logger().warning(
-                "nmea_stale",
-                age_s=round(age_s, 3) if math.isfinite(age_s) else None,
-                limit_s=self.max_age_s,
-            )
-        return stale
-
-    def _update_rate(self, now_s: float) -> None:
-        elapsed_s = now_s - self._window_start_s
-        if elapsed_s >= 1.0:
-            self._events_per_s = self._window_events / elapsed_s
-            self._window_start_s, self._window_events = now_s, 0
+    def _tick(self, now_s: float) -> float:
+        return now_s + BEAT_PERIOD_S
