@@ -124,10 +124,10 @@ class SerialLink(abc.ABC):
         """A connection begins: parser state of the last one goes (a line or frame cut by
         the unplug must not be glued to the first bytes after it)."""
 
+    @abc.abstractmethod
     def _tick(self, now_s: float) -> float:
         """The link's own duty at each wake-up (the actuators re-send their command); the
         time of the next wake-up it needs."""
-        return now_s + self.max_age_s
 
     # ---- what the rest of the daemon calls -----------------------------------------------
     @property

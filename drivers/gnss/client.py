@@ -164,9 +164,6 @@ class GnssClient(SerialLink):
     def age_s(self, now_s: float) -> float:
         return now_s - self._last_event_s
 
-    def last_event_age_s(self, now_s: float) -> float:
-        return self.age_s(now_s)
-
     def rejects(self) -> Counter[str]:
         """Rejected lines by reason, over every connection so far."""
         return self._earlier_rejects + self.receiver.counts
@@ -183,7 +180,7 @@ class GnssClient(SerialLink):
             port=self.port,
             connected=self.connected,
             stale=self.is_stale(now),
-            last_event_age_s=self.last_event_age_s(now),
+            last_event_age_s=self.age_s(now),
             events_per_s=self._rate_per_s,
             events_ok=sum(self.events_by_sentence.values()),
             events_by_sentence=MappingProxyType(dict(self.events_by_sentence)),
