@@ -1,81 +1,80 @@
-"""The least-squares search behind the circle fits (`circles`), in plain floats where
-numpy would cost more than the arithmetic.
+"""The least-squares search behind the circle fits (`circles`), as compiled kernels (`jit`).
 
 The residual of point ``p_i`` is ``r_i = |p_i − c| − R``, over ``x = (cx, cy)`` with ``R``
-given or ``x = (cx, cy, R)``. One matrix product of the rows ``[n_x, n_y, r, c n_x, c n_y,
-1]`` (``n`` the radial unit vector, ``c = r / |p − c|``) gives every sum the search needs:
-the gradient ``Jᵀr``, the normal matrix ``JᵀJ`` and the exact Hessian ``JᵀJ + Σ c (I − n
-nᵀ)`` (``J = −[n_x, n_y (, 1)]``). The 2x2/3x3 algebra on those sums is done in floats:
-these fits run on a few dozen points, and the search is Levenberg–Marquardt on the exact
-Hessian (quadratic convergence in a handful of steps; the damping turns it into gradient
-descent far from a minimum).
+given or ``x = (cx, cy, R)``. One pass over the points accumulates the pairwise sums of
+the rows ``[n_x, n_y, r, c n_x, c n_y, 1]`` (``n`` the radial unit vector, ``c = r /
+|p − c|``): every sum the search needs, i.e. the gradient ``Jᵀr``, the normal matrix
+``JᵀJ`` and the exact Hessian ``JᵀJ + Σ c (I − n nᵀ)`` (``J = −[n_x, n_y (, 1)]``). The
+search is Levenberg–Marquardt on the exact Hessian: quadratic convergence in a handful of
+steps, and the damping turns it into gradient descent far from a minimum.
+
+These run on arcs of a few dozen points, several per scan: as numpy, each step was a
+dozen calls costing more than their arithmetic; compiled, a whole search costs what one
+of those calls did. A kernel calls only kernels of this file (numba's cache is
+invalidated by a change of the file a kernel is in, not of the files it calls into).
 """
 
 from __future__ import annotations
 
 import math
-from typing import NamedTuple
 
 import numpy as np
 
-from appliance.perception.types import FloatArray, ScannerModel
+from appliance.perception.jit import kernel
+from appliance.perception.types import FloatArray
 
 STEP_TOLERANCE = 1e-12
 ROUNDING = 1.0 + 1e-14
+_TINY = 1e-300  # keeps the damped diagonal positive where a column is all zero
 
 
-class Evaluation(NamedTuple):
-    """The residuals' terms at one point of the search: the rows ``[n_x, n_y, r, c n_x,
-    c n_y, 1]`` (``n`` the radial unit vector, ``r`` the residual ``|p − c| − R``,
-    ``c = r / |p − c|``), one column per point, and all their pairwise sums: one matrix
-    product gives every sum the gradient, the exact Hessian and the cost need."""
+@kernel
+def terms(xs: FloatArray, ys: FloatArray, cx: float, cy: float, radius_m: float,
+          sums: FloatArray) -> bool:  # fmt: skip
+    """The pairwise sums of the rows at centre (cx, cy) and radius ``radius_m``, written
+    into the 6x6 ``sums``; whether they are all finite.
 
-    rows: FloatArray  # (6, n)
-    sums: list[list[float]]  # rows @ rows.T
-    finite: bool
-
-
-def evaluate(xs: FloatArray, ys: FloatArray, x: list[float], radius_m: float) -> Evaluation:
-    """The terms at ``x``; the caller has silenced numpy's floating-point warnings.
-
-    A dozen numpy calls on a few dozen points, each costing more than its arithmetic:
-    the intermediate arrays are written into the rows themselves.
+    A point on the centre has no radial direction: its ``n`` is taken as 0 (its residual
+    stays ``−R``). Anything else not finite is reported as such.
     """
-    rows = np.empty((6, xs.shape[0]))
-    dx = np.subtract(xs, x[0], out=rows[0])
-    dy = np.subtract(ys, x[1], out=rows[1])
-    distance = np.hypot(dx, dy)
-    inverse = 1.0 / distance
-    residuals = np.subtract(distance, radius_m, out=rows[2])
-    dx *= inverse
-    dy *= inverse
-    inverse *= residuals
-    np.multiply(dx, inverse, out=rows[3])  # two 1-D products cost less than one of 2-D
-    np.multiply(dy, inverse, out=rows[4])
-    rows[5] = 1.0
-    sums: list[list[float]] = (rows @ rows.T).tolist()
-    # Every sum is finite when the diagonal is (Cauchy–Schwarz).
-    if not math.isfinite(sums[0][0] + sums[1][1] + sums[2][2] + sums[3][3] + sums[4][4]):
-        return _evaluate_with_centre_points(xs, ys, x, radius_m)
-    return Evaluation(rows, sums, True)
+    for i in range(6):
+        for j in range(6):
+            sums[i, j] = 0.0
+    row = np.empty(6)
+    row[5] = 1.0
+    for k in range(xs.shape[0]):
+        dx = xs[k] - cx
+        dy = ys[k] - cy
+        distance = math.hypot(dx, dy)
+        inverse = 1.0 / distance if distance > 0.0 else 1.0
+        residual = distance - radius_m
+        nx = dx * inverse
+        ny = dy * inverse
+        curvature = residual * inverse
+        row[0] = nx
+        row[1] = ny
+        row[2] = residual
+        row[3] = nx * curvature
+        row[4] = ny * curvature
+        for i in range(6):
+            ri = row[i]
+            for j in range(i, 6):
+                sums[i, j] += ri * row[j]
+    finite = True
+    for i in range(6):
+        for j in range(i, 6):
+            sums[j, i] = sums[i, j]
+            finite = finite and math.isfinite(sums[i, j])
+    return finite
 
 
-def _evaluate_with_centre_points(
-    xs: FloatArray, ys: FloatArray, x: list[float], radius_m: float
-) -> Evaluation:
-    """`_evaluate` when some sum is not finite: a point on the centre has no radial
-    direction (its ``n`` is taken as 0, its residual stays ``−R``), and anything else
-    not finite is reported as such."""
-    rows = np.empty((6, xs.shape[0]))
-    dx, dy = xs - x[0], ys - x[1]
-    distance = np.hypot(dx, dy)
-    inverse = 1.0 / np.where(distance > 0.0, distance, 1.0)
-    rows[0], rows[1] = dx * inverse, dy * inverse
-    rows[2] = distance - radius_m
-    rows[3:5] = rows[0:2] * (rows[2] * inverse)
-    rows[5] = 1.0
-    sums = rows @ rows.T
-    return Evaluation(rows, sums.tolist(), bool(np.isfinite(sums).all()))
+@kernel
+def residuals(xs: FloatArray, ys: FloatArray, cx: float, cy: float, radius_m: float) -> FloatArray:
+    """``|p_i − c| − R`` per point."""
+    out = np.empty(xs.shape[0])
+    for k in range(xs.shape[0]):
+        out[k] = math.hypot(xs[k] - cx, ys[k] - cy) - radius_m
+    return out
 
 
 # The exact Hessian is JᵀJ + Σ c (I − n nᵀ) with J = −[n_x, n_y (, 1)], the gradient Jᵀr:
@@ -83,243 +82,283 @@ def _evaluate_with_centre_points(
 # curvature adds g[1][4] and g[0][3] on the diagonal, −g[0][4] and −g[1][3] off it.
 
 
-def step_known_radius(g: list[list[float]], damping: float) -> list[float] | None:
-    """The damped Newton step over (cx, cy): ``(H + λ diag(JᵀJ)) s = −Jᵀr``."""
-    g0, g1 = g[0], g[1]
-    return _solve_2x2(
-        g0[0] + g1[4] + damping * (g0[0] + 1e-300),
-        g0[1] - g0[4],
-        g0[1] - g1[3],
-        g1[1] + g0[3] + damping * (g1[1] + 1e-300),
-        g0[2],
-        g1[2],
-    )
+@kernel
+def step(g: FloatArray, damping: float, free: bool, out: FloatArray) -> bool:
+    """The damped Newton step ``(H + λ diag(JᵀJ)) s = −Jᵀr`` over (cx, cy) or, ``free``,
+    (cx, cy, R), into ``out``; False if the system is singular or the step not finite."""
+    a = g[0, 0] + g[1, 4] + damping * (g[0, 0] + _TINY)
+    b = g[0, 1] - g[0, 4]
+    c = g[0, 1] - g[1, 3]
+    d = g[1, 1] + g[0, 3] + damping * (g[1, 1] + _TINY)
+    if not free:
+        return _solve_2x2(a, b, c, d, g[0, 2], g[1, 2], out)
+    rows = np.empty((3, 4))
+    rows[0, 0], rows[0, 1], rows[0, 2], rows[0, 3] = a, b, g[0, 5], g[0, 2]
+    rows[1, 0], rows[1, 1], rows[1, 2], rows[1, 3] = c, d, g[1, 5], g[1, 2]
+    rows[2, 0], rows[2, 1] = g[0, 5], g[1, 5]
+    rows[2, 2], rows[2, 3] = g[5, 5] + damping * (g[5, 5] + _TINY), g[2, 5]
+    return _solve_3x3(rows, out)
 
 
-def step_free(g: list[list[float]], damping: float) -> list[float] | None:
-    """The damped Newton step over (cx, cy, R)."""
-    g0, g1, g5 = g[0], g[1], g[5]
-    return _solve_3x3(
-        [g0[0] + g1[4] + damping * (g0[0] + 1e-300), g0[1] - g0[4], g0[5], g0[2]],
-        [g0[1] - g1[3], g1[1] + g0[3] + damping * (g1[1] + 1e-300), g1[5], g1[2]],
-        [g0[5], g1[5], g5[5] + damping * (g5[5] + 1e-300), g[2][5]],
-    )
-
-
-def _solve_2x2(a: float, b: float, c: float, d: float, u: float, v: float) -> list[float] | None:
-    """``[[a, b], [c, d]] s = [u, v]`` by Gaussian elimination with partial pivoting;
-    None if singular or not finite."""
+@kernel
+def _solve_2x2(a: float, b: float, c: float, d: float, u: float, v: float,
+               out: FloatArray) -> bool:  # fmt: skip
+    """``[[a, b], [c, d]] s = [u, v]`` by Gaussian elimination with partial pivoting."""
     if abs(c) > abs(a):
         a, b, u, c, d, v = c, d, v, a, b, u
     if not abs(a) > 0.0:
-        return None
+        return False
     factor = c / a
     d -= factor * b
     v -= factor * u
     if not abs(d) > 0.0:
-        return None
+        return False
     second = v / d
     first = (u - b * second) / a
-    return [first, second] if math.isfinite(first) and math.isfinite(second) else None
+    out[0] = first
+    out[1] = second
+    return math.isfinite(first) and math.isfinite(second)
 
 
-def _solve_3x3(r0: list[float], r1: list[float], r2: list[float]) -> list[float] | None:
-    """The 3x3 system of the augmented rows ``[a, b, c, u]``, as `_solve_2x2`."""
-    if abs(r1[0]) > abs(r0[0]) and abs(r1[0]) >= abs(r2[0]):
-        r0, r1 = r1, r0
-    elif abs(r2[0]) > abs(r0[0]):
-        r0, r2 = r2, r0
-    if not abs(r0[0]) > 0.0:
-        return None
-    a, b, c, u = r0
-    for row in (r1, r2):
-        factor = row[0] / a
-        row[1] -= factor * b
-        row[2] -= factor * c
-        row[3] -= factor * u
-    if abs(r2[1]) > abs(r1[1]):
-        r1, r2 = r2, r1
-    if not abs(r1[1]) > 0.0:
-        return None
-    factor = r2[1] / r1[1]
-    r2[2] -= factor * r1[2]
-    r2[3] -= factor * r1[3]
-    if not abs(r2[2]) > 0.0:
-        return None
-    third = r2[3] / r2[2]
-    second = (r1[3] - r1[2] * third) / r1[1]
-    first = (u - (b * second + c * third)) / a
-    solution = [first, second, third]
-    return solution if all(math.isfinite(v) for v in solution) else None
+@kernel
+def _solve_3x3(rows: FloatArray, out: FloatArray) -> bool:
+    """The 3x3 system of the augmented ``rows`` ``[a, b, c, u]`` (overwritten), as
+    `_solve_2x2`."""
+    top, middle, bottom = 0, 1, 2
+    if abs(rows[1, 0]) > abs(rows[0, 0]) and abs(rows[1, 0]) >= abs(rows[2, 0]):
+        top, middle = 1, 0
+    elif abs(rows[2, 0]) > abs(rows[0, 0]):
+        top, bottom = 2, 0
+    a = rows[top, 0]
+    if not abs(a) > 0.0:
+        return False
+    for other in (middle, bottom):
+        factor = rows[other, 0] / a
+        for j in range(1, 4):
+            rows[other, j] -= factor * rows[top, j]
+    if abs(rows[bottom, 1]) > abs(rows[middle, 1]):
+        middle, bottom = bottom, middle
+    if not abs(rows[middle, 1]) > 0.0:
+        return False
+    factor = rows[bottom, 1] / rows[middle, 1]
+    rows[bottom, 2] -= factor * rows[middle, 2]
+    rows[bottom, 3] -= factor * rows[middle, 3]
+    if not abs(rows[bottom, 2]) > 0.0:
+        return False
+    third = rows[bottom, 3] / rows[bottom, 2]
+    second = (rows[middle, 3] - rows[middle, 2] * third) / rows[middle, 1]
+    first = (rows[top, 3] - (rows[top, 1] * second + rows[top, 2] * third)) / a
+    out[0], out[1], out[2] = first, second, third
+    return math.isfinite(first) and math.isfinite(second) and math.isfinite(third)
 
 
-def minimise(
-    xs: FloatArray, ys: FloatArray, start: list[float], radius_m: float | None, max_iterations: int
-) -> tuple[list[float], Evaluation, bool]:
-    """Levenberg–Marquardt on the exact Hessian from ``start``: (x, its terms, converged).
+@kernel
+def _largest_magnitude(values: FloatArray) -> float:
+    largest = 0.0
+    for value in values:
+        largest = max(largest, abs(value))
+    return largest
 
-    ``xs``, ``ys`` are the points' coordinates (contiguous); numpy's floating-point
-    warnings are the caller's to silence. Converged means the next step is below 1e-12
-    of the coordinates' size (checked before it is taken: at the minimum, rounding
-    alone can make it look uphill). Never raises: a singular or non-finite system ends
-    the search unconverged.
+
+@kernel
+def minimise(xs: FloatArray, ys: FloatArray, start: FloatArray, radius_m: float,
+             max_iterations: int) -> tuple[FloatArray, FloatArray, bool]:  # fmt: skip
+    """Levenberg–Marquardt on the exact Hessian from ``start``: (x, the sums at x,
+    converged).
+
+    ``start`` is (cx, cy) for a fit of the given ``radius_m``, (cx, cy, R) for a free one
+    (``radius_m`` unused). Converged means the next step is below 1e-12 of the
+    coordinates' size (checked before it is taken: at the minimum, rounding alone can
+    make it look uphill). A singular or non-finite system ends the search unconverged.
     """
-    step_of = step_free if radius_m is None else step_known_radius
-    x = [float(v) for v in start]
-    current = evaluate(xs, ys, x, x[2] if radius_m is None else radius_m)
+    free = start.shape[0] == 3
+    x = start.copy()
+    moved = np.empty_like(x)
+    delta = np.empty_like(x)
+    current = np.empty((6, 6))
+    trial = np.empty((6, 6))
+    finite = terms(xs, ys, x[0], x[1], x[2] if free else radius_m, current)
     damping = 1e-6
     for _ in range(max_iterations):
-        if not current.finite:
+        if not finite:
             return x, current, False
-        tolerance = STEP_TOLERANCE * (max(map(abs, x)) + 1.0)
-        cost = current.sums[2][2]
+        tolerance = STEP_TOLERANCE * (_largest_magnitude(x) + 1.0)
+        cost = current[2, 2]
         while True:
-            step = step_of(current.sums, damping)
-            if step is not None:
-                if max(map(abs, step)) <= tolerance:
+            if step(current, damping, free, delta):
+                if _largest_magnitude(delta) <= tolerance:
                     return x, current, True
-                moved = [a + b for a, b in zip(x, step, strict=True)]
-                trial = evaluate(xs, ys, moved, moved[2] if radius_m is None else radius_m)
+                for i in range(x.shape[0]):
+                    moved[i] = x[i] + delta[i]
+                ok = terms(xs, ys, moved[0], moved[1], moved[2] if free else radius_m, trial)
                 # Rounding may make the last tiny step look a hair uphill: allow for it.
-                if trial.finite and not trial.sums[2][2] > cost * ROUNDING:
+                if ok and not trial[2, 2] > cost * ROUNDING:
                     break
             damping *= 10.0
             if damping > 1e16:
                 return x, current, False
-        x, current = moved, trial
+        x, moved = moved, x
+        current, trial = trial, current
+        finite = True
         damping = max(damping * 0.01, 1e-12)
     return x, current, False
 
 
-class Beams(NamedTuple):
-    """The fitted points as coordinates (contiguous) and their beams from the scanner:
-    the same at every step of a search, and for both fits of one arc (the known radius
-    and the free radius' check), so worked out once."""
-
-    xs: FloatArray
-    ys: FloatArray
-    bx: FloatArray  # the beam: the point less the scanner's position
-    by: FloatArray
-    length: FloatArray  # its length: the point's distance from the scanner
-    divisor: FloatArray  # the length, 1 for a point on the scanner (it has no beam)
-    origin_xy_m: tuple[float, float]
+@kernel
+def normal_variance(sigma_m: float, floor_sigma_m: float, cos_incidence: float) -> float:
+    """`ScannerModel.normal_variance` of one point (a test holds the two together)."""
+    variance = sigma_m * cos_incidence
+    variance *= variance
+    variance += floor_sigma_m**2
+    lowest = (1e-3 * sigma_m) ** 2
+    return variance if floor_sigma_m**2 >= lowest else max(variance, lowest)
 
 
-def beams(xs: FloatArray, ys: FloatArray, origin_xy_m: tuple[float, float]) -> Beams:
-    """`Beams` of the points ``xs``, ``ys`` seen from ``origin_xy_m``."""
-    bx, by = xs - origin_xy_m[0], ys - origin_xy_m[1]
-    length = np.hypot(bx, by)
-    # A point has a beam unless it is on the scanner (or not finite): the usual case costs
-    # one minimum, not a copy.
-    if length.shape[0] and np.minimum.reduce(length) > 0.0:
-        divisor = length
-    else:
-        divisor = np.where(length > 0.0, length, 1.0)
-    return Beams(xs, ys, bx, by, length, divisor, origin_xy_m)
+@kernel
+def covariance(xs: FloatArray, ys: FloatArray, origin_x_m: float, origin_y_m: float,
+               x: FloatArray, radius_m: float, g: FloatArray, sigma_m: float,
+               floor_sigma_m: float) -> tuple[FloatArray, bool]:  # fmt: skip
+    """The first-order sandwich ``(JᵀJ)⁻¹ Jᵀ diag(σ_i²) J (JᵀJ)⁻¹`` over (cx, cy) or, for
+    a free ``x`` (cx, cy, R), over all three, at ``x`` where the sums ``g`` were taken;
+    each residual's variance from its beam's incidence on the circle (the beam from the
+    scanner at ``origin``). False unless ``JᵀJ`` is invertible and the result finite."""
+    size = x.shape[0]
+    used = np.empty(3)
+    used[2] = 1.0
+    middle = np.zeros((size, size))
+    for k in range(xs.shape[0]):
+        dx = xs[k] - x[0]
+        dy = ys[k] - x[1]
+        distance = math.hypot(dx, dy)
+        inverse = 1.0 / distance if distance > 0.0 else 1.0
+        used[0] = dx * inverse
+        used[1] = dy * inverse
+        bx = xs[k] - origin_x_m
+        by = ys[k] - origin_y_m
+        length = math.hypot(bx, by)
+        divisor = length if length > 0.0 else 1.0  # a point on the scanner has no beam
+        weight = normal_variance(sigma_m, floor_sigma_m, (bx * used[0] + by * used[1]) / divisor)
+        for i in range(size):
+            weighted = used[i] * weight
+            for j in range(size):
+                middle[i, j] += weighted * used[j]
+    normal = np.empty((size, size))
+    index = (0, 1, 5)
+    for i in range(size):
+        for j in range(size):
+            normal[i, j] = g[index[i], index[j]]
+    outer = np.empty((size, size))
+    if not _inverse_symmetric(normal, outer):
+        return outer, False
+    result = _sandwich(outer, middle)
+    finite = True
+    for i in range(size):
+        for j in range(i, size):
+            value = 0.5 * (result[i, j] + result[j, i])
+            result[i, j] = value
+            result[j, i] = value
+            finite = finite and math.isfinite(value)
+    return result, finite
 
 
-def centre_covariance(
-    points: Beams, terms: Evaluation, free: bool, scanner: ScannerModel
-) -> FloatArray | None:
-    """The first-order sandwich ``(JᵀJ)⁻¹ Jᵀ diag(σ_i²) J (JᵀJ)⁻¹`` over (cx, cy (, R)),
-    with each residual's variance from its beam's incidence on the circle; None unless
-    ``JᵀJ`` is invertible and the result finite."""
-    radial = terms.rows
-    cos_incidence = (points.bx * radial[0] + points.by * radial[1]) / points.divisor
-    used = terms.rows[[0, 1, 5]] if free else terms.rows[0:2]
-    middle = (used * scanner.normal_variance(cos_incidence)) @ used.T
-    g0, g1, g5 = terms.sums[0], terms.sums[1], terms.sums[5]
-    if not free:
-        return _sandwich_2x2(_inverse_2x2(g0[0], g0[1], g1[1]), middle.tolist())
-    inverse = _inverse_3x3(g0[0], g0[1], g0[5], g1[1], g1[5], g5[5])
-    if inverse is None:
-        return None
-    outer = np.array(inverse)
-    covariance: FloatArray = outer @ middle @ outer
-    covariance = 0.5 * (covariance + covariance.T)
-    return covariance if np.isfinite(covariance).all() else None
+@kernel
+def _sandwich(outer: FloatArray, middle: FloatArray) -> FloatArray:
+    """``A M A`` in loops: a 2x2 or 3x3 product is a few dozen operations, and BLAS would
+    round it differently on different CPUs."""
+    size = outer.shape[0]
+    left = np.zeros((size, size))
+    for i in range(size):
+        for k in range(size):
+            for j in range(size):
+                left[i, j] += outer[i, k] * middle[k, j]
+    result = np.zeros((size, size))
+    for i in range(size):
+        for k in range(size):
+            for j in range(size):
+                result[i, j] += left[i, k] * outer[k, j]
+    return result
 
 
-def radius_variance(points: Beams, terms: Evaluation, scanner: ScannerModel) -> float | None:
-    """The free fit's ``var R``: the last diagonal entry of `centre_covariance`, with its
-    3x3 sandwich in floats (numpy's products of 3x3 matrices cost more than their
-    arithmetic). It only decides whether a free radius surely agrees
-    (`circles.free_radius_mismatch`), a test with a 2 % margin on σ, which products
-    rounded differently move by parts in 10¹⁶; None where `centre_covariance` is."""
-    radial = terms.rows
-    cos_incidence = (points.bx * radial[0] + points.by * radial[1]) / points.divisor
-    used = terms.rows[[0, 1, 5]]
-    middle = ((used * scanner.normal_variance(cos_incidence)) @ used.T).tolist()
-    g0, g1, g5 = terms.sums[0], terms.sums[1], terms.sums[5]
-    inverse = _inverse_3x3(g0[0], g0[1], g0[5], g1[1], g1[5], g5[5])
-    if inverse is None:
-        return None
-    if not all(map(math.isfinite, (*middle[0], *middle[1], *middle[2], *inverse[0],
-                                   *inverse[1], *inverse[2]))):  # fmt: skip
-        return None
-    (m00, m01, m02), (m10, m11, m12), (m20, m21, m22) = middle
-    k0, k1, k2 = inverse[2]  # the last row of the symmetric inverse: its last column
-    variance = (
-        k0 * (m00 * k0 + m01 * k1 + m02 * k2)
-        + k1 * (m10 * k0 + m11 * k1 + m12 * k2)
-        + k2 * (m20 * k0 + m21 * k1 + m22 * k2)
-    )
-    return variance if math.isfinite(variance) else None
-
-
-def _sandwich_2x2(
-    inverse: list[list[float]] | None, middle: list[list[float]]
-) -> FloatArray | None:
-    """``A M A`` (symmetrised) for the 2x2 case, in floats; None unless finite."""
-    if inverse is None:
-        return None
-    (a, b), (_, d) = inverse
-    (p, q), (r, s) = middle
-    row0, row1 = (a * p + b * r, a * q + b * s), (b * p + d * r, b * q + d * s)
-    xx, yy = row0[0] * a + row0[1] * b, row1[0] * b + row1[1] * d
-    xy = 0.5 * ((row0[0] * b + row0[1] * d) + (row1[0] * a + row1[1] * b))
-    if not (math.isfinite(xx) and math.isfinite(yy) and math.isfinite(xy)):
-        return None
-    return np.array([[xx, xy], [xy, yy]])
-
-
-def _inverse_2x2(a: float, b: float, d: float) -> list[list[float]] | None:
-    """The inverse of ``[[a, b], [b, d]]`` by cofactors; None if singular."""
-    det = a * d - b * b
-    if not (det != 0.0 and math.isfinite(det)):
-        return None
-    return [[d / det, -b / det], [-b / det, a / det]]
-
-
-def _inverse_3x3(
-    a: float, b: float, c: float, e: float, f: float, i: float
-) -> list[list[float]] | None:
-    """The inverse of the symmetric ``[[a, b, c], [b, e, f], [c, f, i]]``; None if singular."""
+@kernel
+def _inverse_symmetric(m: FloatArray, out: FloatArray) -> bool:
+    """The inverse of a symmetric 2x2 or 3x3 ``m`` by cofactors into ``out``; False if
+    singular."""
+    if m.shape[0] == 2:
+        a, b, d = m[0, 0], m[0, 1], m[1, 1]
+        det = a * d - b * b
+        if not (det != 0.0 and math.isfinite(det)):
+            return False
+        out[0, 0], out[0, 1], out[1, 0], out[1, 1] = d / det, -b / det, -b / det, a / det
+        return True
+    a, b, c, e, f, i = m[0, 0], m[0, 1], m[0, 2], m[1, 1], m[1, 2], m[2, 2]
     co_a, co_b, co_c = e * i - f * f, c * f - b * i, b * f - c * e
     det = a * co_a + b * co_b + c * co_c
     if not (det != 0.0 and math.isfinite(det)):
-        return None
+        return False
     co_e, co_f, co_i = a * i - c * c, b * c - a * f, a * e - b * b
-    return [
-        [co_a / det, co_b / det, co_c / det],
-        [co_b / det, co_e / det, co_f / det],
-        [co_c / det, co_f / det, co_i / det],
-    ]
+    out[0, 0], out[0, 1], out[0, 2] = co_a / det, co_b / det, co_c / det
+    out[1, 0], out[1, 1], out[1, 2] = co_b / det, co_e / det, co_f / det
+    out[2, 0], out[2, 1], out[2, 2] = co_c / det, co_f / det, co_i / det
+    return True
 
 
-def coordinates(xy_m: FloatArray) -> tuple[FloatArray, FloatArray]:
-    return np.ascontiguousarray(xy_m[:, 0]), np.ascontiguousarray(xy_m[:, 1])
-
-
-def positive_definite_free(g: list[list[float]]) -> bool:
+@kernel
+def positive_definite_free(g: FloatArray) -> bool:
     """Whether the free fit's Hessian in the sums ``g`` is (Sylvester's criterion on its
     symmetric part)."""
-    g0, g1, g5 = g[0], g[1], g[5]
-    a, e, i = g0[0] + g1[4], g1[1] + g0[3], g5[5]
-    b = g0[1] - 0.5 * (g0[4] + g1[3])
-    c, f = g0[5], g1[5]
-    return (
+    a, e, i = g[0, 0] + g[1, 4], g[1, 1] + g[0, 3], g[5, 5]
+    b = g[0, 1] - 0.5 * (g[0, 4] + g[1, 3])
+    c, f = g[0, 5], g[1, 5]
+    return bool(
         a > 0.0
         and a * e - b * b > 0.0
         and a * (e * i - f * f) - b * (b * i - f * c) + c * (b * f - e * c) > 0.0
     )
+
+
+@kernel
+def surely_agrees(xs: FloatArray, ys: FloatArray, origin_x_m: float, origin_y_m: float,
+                  known: FloatArray, g_known: FloatArray, sigma_m: float, floor_sigma_m: float,
+                  tolerance_m: float, sigmas: float) -> bool:  # fmt: skip
+    """Whether the free radius surely agrees with the known one, ``known`` (cx, cy, R) a
+    known-radius fit of the points with the sums ``g_known`` there (its last terms are
+    the free fit's first: the same residuals); `circles.free_radius_mismatch` says why
+    this settles most arcs. False means: not settled here, run the full free fit."""
+    x = known.copy()
+    moved = np.empty(3)
+    delta = np.empty(3)
+    current = g_known.copy()
+    trial = np.empty((6, 6))
+    for _ in range(8):
+        for i in range(6):
+            for j in range(6):
+                if not math.isfinite(current[i, j]):
+                    return False
+        if not step(current, 0.0, True, delta):
+            return False
+        size = _largest_magnitude(delta)
+        if size <= 1e-5 * (_largest_magnitude(x) + 1.0):
+            if not positive_definite_free(current):
+                return False
+            result, ok = covariance(
+                xs, ys, origin_x_m, origin_y_m, x, x[2], current, sigma_m, floor_sigma_m
+            )
+            if not ok:
+                return False
+            sigma = math.sqrt(max(result[2, 2], 0.0))
+            off = abs(x[2] + delta[2] - known[2]) + 10.0 * size
+            return bool(off <= tolerance_m + sigmas * 0.98 * sigma)
+        for i in range(3):
+            moved[i] = x[i] + delta[i]
+        if not (
+            terms(xs, ys, moved[0], moved[1], moved[2], trial)
+            and trial[2, 2] <= current[2, 2] * ROUNDING
+        ):
+            return False
+        x, moved = moved, x
+        current, trial = trial, current
+    return False
+
+
+def coordinates(xy_m: FloatArray) -> tuple[FloatArray, FloatArray]:
+    return np.ascontiguousarray(xy_m[:, 0]), np.ascontiguousarray(xy_m[:, 1])

@@ -30,17 +30,12 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from appliance.perception.circle_search import (
-    ROUNDING,
-    Beams,
-    Evaluation,
-    beams,
-    centre_covariance,
     coordinates,
-    evaluate,
+    covariance,
     minimise,
-    positive_definite_free,
-    radius_variance,
-    step_free,
+    residuals,
+    surely_agrees,
+    terms,
 )
 from appliance.perception.types import (
     FitRejection,
@@ -66,19 +61,18 @@ class CircleFit:
     rms_m: float
     n_points: int
     residuals_m: FloatArray
-    # The search's terms at the solution, for a refit of the same points from there, and
-    # the points' beams.
-    _terms: Evaluation | None = field(default=None, repr=False)
-    _beams: Beams | None = field(default=None, repr=False)
+    # The points (contiguous coordinates), the scanner's position and the search's sums
+    # at the solution: a refit of the same points starts from there.
+    _xs: FloatArray = field(repr=False)
+    _ys: FloatArray = field(repr=False)
+    _origin_xy_m: tuple[float, float] = field(repr=False)
+    _sums: FloatArray = field(repr=False)
 
     @property
     def mean_range_m(self) -> float:
         """The mean distance of the fitted points from the scanner."""
-        if self._beams is None:
-            raise ValueError("a circle fit without its points")
-        length = self._beams.length
-        total = float(np.add.reduce(length))  # np.mean's sum and division, less its wrapper
-        return total / len(length)
+        ox, oy = self._origin_xy_m
+        return float(np.hypot(self._xs - ox, self._ys - oy).mean())
 
 
 def taubin_circle(xy_m: FloatArray) -> tuple[float, float, float] | FitRejection:
@@ -123,31 +117,37 @@ def taubin_circle(xy_m: FloatArray) -> tuple[float, float, float] | FitRejection
 
 
 def _finish_fit(
-    points: Beams,
-    x: list[float],
-    terms: Evaluation,
+    xs: FloatArray,
+    ys: FloatArray,
+    origin_xy_m: tuple[float, float],
+    x: FloatArray,
+    sums: FloatArray,
     radius_m: float | None,
     scanner: ScannerModel,
 ) -> CircleFit | FitRejection:
-    covariance = centre_covariance(points, terms, radius_m is None, scanner)
-    if covariance is None:
+    radius = float(x[2]) if radius_m is None else radius_m
+    centre, determined = covariance(
+        xs, ys, *origin_xy_m, x, radius, sums, scanner.sigma_m, scanner.floor_sigma_m
+    )
+    if not determined:
         return FitRejection(RejectReason.DEGENERATE, "the centre is not determined")
-    radius = x[2] if radius_m is None else radius_m
-    radius_sigma = 0.0 if radius_m is not None else math.sqrt(max(float(covariance[2, 2]), 0.0))
-    rms = math.sqrt(terms.sums[2][2] / points.xs.shape[0])
-    if not (math.isfinite(rms) and math.isfinite(radius_sigma) and all(map(math.isfinite, x))):
+    radius_sigma = 0.0 if radius_m is not None else math.sqrt(max(float(centre[2, 2]), 0.0))
+    rms = math.sqrt(float(sums[2, 2]) / xs.shape[0])
+    if not (math.isfinite(rms) and math.isfinite(radius_sigma) and np.isfinite(x).all()):
         return FitRejection(RejectReason.NON_FINITE)
     return CircleFit(
-        x[0],
-        x[1],
+        float(x[0]),
+        float(x[1]),
         radius,
-        covariance[:2, :2],
+        centre[:2, :2].copy(),
         radius_sigma,
         rms,
-        int(points.xs.shape[0]),
-        terms.rows[2].copy(),
-        terms,
-        points,
+        int(xs.shape[0]),
+        residuals(xs, ys, float(x[0]), float(x[1]), radius),
+        xs,
+        ys,
+        origin_xy_m,
+        sums,
     )
 
 
@@ -185,9 +185,11 @@ def fit_circle_known_radius(
                 if isinstance(algebraic, FitRejection):
                     break
                 guess = list(algebraic[:2])
-            centre, terms, converged = minimise(xs, ys, guess, radius_m, max_iterations)
+            centre, sums, converged = minimise(
+                xs, ys, np.array(guess, dtype=np.float64), radius_m, max_iterations
+            )
             if converged:
-                return _finish_fit(beams(xs, ys, origin_xy_m), centre, terms, radius_m, scanner)
+                return _finish_fit(xs, ys, origin_xy_m, centre, sums, radius_m, scanner)
     return FitRejection(RejectReason.NOT_CONVERGED)
 
 
@@ -211,10 +213,12 @@ def fit_circle_free(
         if not np.isfinite(xy_m).all():
             return FitRejection(RejectReason.NON_FINITE)
         xs, ys = coordinates(xy_m)
-        x, terms, converged = minimise(xs, ys, list(start), None, max_iterations)
+        x, sums, converged = minimise(
+            xs, ys, np.array(start, dtype=np.float64), math.nan, max_iterations
+        )
         if not (converged and x[2] > 0.0):
             return FitRejection(RejectReason.NOT_CONVERGED)
-        return _finish_fit(beams(xs, ys, origin_xy_m), x, terms, None, scanner)
+        return _finish_fit(xs, ys, origin_xy_m, x, sums, None, scanner)
 
 
 def free_radius_mismatch(
@@ -235,17 +239,23 @@ def free_radius_mismatch(
     next step is below 1e-5 of the coordinates (so the minimum is within ten such steps:
     the convergence is quadratic there), and if the radius there plus that margin is
     inside the allowance computed there less 2 % (the σ moves by far less over so short
-    a way), the fit would agree. Anything else is decided by the full fit.
+    a way), the fit would agree (`circle_search.surely_agrees`). Anything else is decided
+    by the full fit.
     """
     with np.errstate(all="ignore"):
-        points = known._beams  # the same points: their beams are known already
-        if (
-            points is None
-            or points.xs.shape[0] != xy_m.shape[0]
-            or points.origin_xy_m != origin_xy_m
-        ):
-            points = beams(*coordinates(xy_m), origin_xy_m)
-        if _surely_agrees(points, known, scanner, tolerance_m, sigmas):
+        if known._xs.shape[0] == xy_m.shape[0] and known._origin_xy_m == origin_xy_m:
+            xs, ys, sums = known._xs, known._ys, known._sums  # the same points, fitted
+        else:
+            xs, ys = coordinates(xy_m)
+            sums = None
+        centre = np.array([known.cx_m, known.cy_m, known.radius_m])
+        if sums is None:
+            sums = np.empty((6, 6))
+            terms(xs, ys, known.cx_m, known.cy_m, known.radius_m, sums)
+        if surely_agrees(
+            xs, ys, *origin_xy_m, centre, sums, scanner.sigma_m, scanner.floor_sigma_m,
+            tolerance_m, sigmas,
+        ):  # fmt: skip
             return None
     free = fit_circle_free(
         xy_m, origin_xy_m, scanner, max_iterations, start=(known.cx_m, known.cy_m, known.radius_m)
@@ -254,40 +264,3 @@ def free_radius_mismatch(
         return None
     allowed = tolerance_m + sigmas * free.radius_sigma_m
     return free.radius_m if abs(free.radius_m - known.radius_m) > allowed else None
-
-
-def _surely_agrees(
-    points: Beams,
-    known: CircleFit,
-    scanner: ScannerModel,
-    tolerance_m: float,
-    sigmas: float,
-) -> bool:
-    xs, ys = points.xs, points.ys
-    x = [known.cx_m, known.cy_m, known.radius_m]
-    # A known-radius fit's last terms are the free fit's first: the same residuals.
-    current = known._terms
-    if current is None or current.rows.shape[1] != xs.shape[0]:
-        current = evaluate(xs, ys, x, known.radius_m)
-    for _ in range(8):
-        if not current.finite:
-            return False
-        step = step_free(current.sums, 0.0)
-        if step is None:
-            return False
-        size = max(map(abs, step))
-        if size <= 1e-5 * (max(map(abs, x)) + 1.0):
-            if not positive_definite_free(current.sums):
-                return False
-            variance = radius_variance(points, current, scanner)
-            if variance is None:
-                return False
-            sigma = math.sqrt(max(variance, 0.0))
-            off = abs(x[2] + step[2] - known.radius_m) + 10.0 * size
-            return off <= tolerance_m + sigmas * 0.98 * sigma
-        moved = [a + b for a, b in zip(x, step, strict=True)]
-        trial = evaluate(xs, ys, moved, moved[2])
-        if not (trial.finite and trial.sums[2][2] <= current.sums[2][2] * ROUNDING):
-            return False
-        x, current = moved, trial
-    return False

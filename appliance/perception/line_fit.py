@@ -30,6 +30,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from appliance.perception.jit import kernel
 from appliance.perception.types import FitRejection, FloatArray, RejectReason, ScannerModel
 
 _IRLS_TOLERANCE = 1e-12
@@ -49,6 +50,7 @@ class LineFit:
     chi_square: float  # Σ (residual / its σ)²
 
 
+@kernel
 def wrap_angle(angle_rad: float) -> float:
     """The angle in (−π, π]."""
     wrapped = math.atan2(math.sin(angle_rad), math.cos(angle_rad))
@@ -98,14 +100,23 @@ def line_from_sums(sums: FloatArray, shift: FloatArray) -> RoughLine | None:
 def line_from_list(sums: list[float], shift_x: float, shift_y: float) -> RoughLine | None:
     """`line_from_sums` of the sums as floats (1, x, y, x², y², xy) and the shift."""
     total, sx, sy, sxx, syy, sxy = sums
+    found, *line = _rough_line(total, sx, sy, sxx, syy, sxy, shift_x, shift_y)
+    return RoughLine(*line) if found else None
+
+
+@kernel
+def _rough_line(total: float, sx: float, sy: float, sxx: float, syy: float, sxy: float,
+                shift_x: float, shift_y: float
+                ) -> tuple[bool, float, float, float, float, float, float]:  # fmt: skip
+    """(found, then `RoughLine`'s fields) of the moment sums."""
     if not total > 0.0:
-        return None
+        return False, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
     mx, my = sx / total, sy / total
     cxx, cyy, cxy = sxx - total * mx * mx, syy - total * my * my, sxy - total * mx * my
     px, py = mx + shift_x, my + shift_y
     resolution = _RESOLUTION * max(abs(px), abs(py))  # spreads below this are rounding
     if not (cxx + cyy > total * resolution * resolution and math.isfinite(cxx + cyy + cxy)):
-        return None
+        return False, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
     alpha = 0.5 * math.atan2(-2.0 * cxy, cyy - cxx)
     c, s = math.cos(alpha), math.sin(alpha)
     r = px * c + py * s
@@ -113,7 +124,7 @@ def line_from_list(sums: list[float], shift_x: float, shift_y: float) -> RoughLi
         r, alpha, c, s = -r, alpha + math.pi, -c, -s
     spread = cxx * s * s - 2.0 * cxy * s * c + cyy * c * c
     across = cxx * c * c + 2.0 * cxy * s * c + cyy * s * s
-    return RoughLine(r, wrap_angle(alpha), spread, -s * px + c * py, total, across)
+    return True, r, wrap_angle(alpha), spread, -s * px + c * py, total, across
 
 
 def tls_line(xy_m: FloatArray, weights: FloatArray | None = None) -> tuple[float, float] | None:
@@ -129,13 +140,31 @@ def tls_line(xy_m: FloatArray, weights: FloatArray | None = None) -> tuple[float
     return None if line is None else (line.r_m, line.alpha_rad)
 
 
-def _weights(
-    directions: FloatArray | None, alpha: float, scanner: ScannerModel, n: int
-) -> FloatArray:
-    if directions is None:
-        return np.full(n, 1.0 / (scanner.sigma_m**2 + scanner.floor_sigma_m**2))
-    variance = scanner.normal_variance(directions @ np.array([math.cos(alpha), math.sin(alpha)]))
-    return np.divide(1.0, variance, out=variance)
+@kernel
+def _weights(directions: FloatArray, alpha: float, sigma_m: float, floor_sigma_m: float,
+             out: FloatArray) -> None:  # fmt: skip
+    """Each point's weight, 1 / the variance of its offset along the normal at ``alpha``
+    (`ScannerModel.normal_variance`), into ``out``."""
+    c, s = math.cos(alpha), math.sin(alpha)
+    lowest = (1e-3 * sigma_m) ** 2
+    for k in range(directions.shape[0]):
+        variance = sigma_m * (directions[k, 0] * c + directions[k, 1] * s)
+        variance *= variance
+        variance += floor_sigma_m**2
+        if floor_sigma_m**2 < lowest:
+            variance = max(variance, lowest)
+        out[k] = 1.0 / variance
+
+
+@kernel
+def _weighted_sums(weights: FloatArray, moments: FloatArray, out: FloatArray) -> None:
+    """``weights @ moments`` into ``out``, the points added in order."""
+    for j in range(6):
+        out[j] = 0.0
+    for k in range(moments.shape[0]):
+        w = weights[k]
+        for j in range(6):
+            out[j] += w * moments[k, j]
 
 
 def fit_line(
@@ -184,27 +213,52 @@ def fit_line_moments(
     `moment_columns` (a caller that has them for a whole cluster passes a piece's rows);
     numpy's floating-point warnings are the caller's to silence."""
     n = int(q.shape[0])
-    weights = _weights(directions, 0.0 if alpha_start_rad is None else alpha_start_rad, scanner, n)
-    previous: RoughLine | None = None
-    line: RoughLine | None = None
-    for _ in range(max(max_iterations, 1) if directions is not None else 1):
-        line = line_from_list((weights @ moments).tolist(), *shift_xy_m)
+    if directions is None:
+        weights = np.full(n, 1.0 / (scanner.sigma_m**2 + scanner.floor_sigma_m**2))
+        line = line_from_list(column_sums(weights[:, None] * moments).tolist(), *shift_xy_m)
         if line is None:
             return FitRejection(RejectReason.DEGENERATE, "no direction in the points")
-        if directions is None:
-            break
-        if previous is not None:
-            change = max(
-                abs(line.r_m - previous.r_m),
-                abs(wrap_angle(line.alpha_rad - previous.alpha_rad)),
-            )
-            if change <= _IRLS_TOLERANCE * (1.0 + line.r_m):
-                break  # the weights this line was fitted with are its own, to rounding
-        previous = line
-        weights = _weights(directions, line.alpha_rad, scanner, n)
-    if line is None:
+        return _finish_line_fit(q, *shift_xy_m, line, weights)
+    found, weights, *fields = _irls(
+        moments,
+        np.ascontiguousarray(directions),
+        0.0 if alpha_start_rad is None else alpha_start_rad,
+        scanner.sigma_m,
+        scanner.floor_sigma_m,
+        *shift_xy_m,
+        max(max_iterations, 1),
+    )
+    if not found:
         return FitRejection(RejectReason.DEGENERATE, "no direction in the points")
-    return _finish_line_fit(q, *shift_xy_m, line, weights)
+    return _finish_line_fit(q, *shift_xy_m, RoughLine(*fields), weights)
+
+
+@kernel
+def _irls(moments: FloatArray, directions: FloatArray, alpha_start_rad: float, sigma_m: float,
+          floor_sigma_m: float, shift_x: float, shift_y: float, iterations: int
+          ) -> tuple[bool, FloatArray, float, float, float, float, float, float]:  # fmt: skip
+    """The weighted line iterated to its fixed point: (found, the weights it ends with,
+    then `RoughLine`'s fields). Each pass fits the line with the weights of the last
+    pass's normal; it stops when a pass moves the line by no more than rounding."""
+    weights = np.empty(moments.shape[0])
+    sums = np.empty(6)
+    _weights(directions, alpha_start_rad, sigma_m, floor_sigma_m, weights)
+    found = False
+    r = alpha = spread = along = total = across = 0.0
+    for iteration in range(iterations):
+        _weighted_sums(weights, moments, sums)
+        previous_r, previous_alpha = r, alpha
+        found, r, alpha, spread, along, total, across = _rough_line(
+            sums[0], sums[1], sums[2], sums[3], sums[4], sums[5], shift_x, shift_y
+        )
+        if not found:
+            break
+        if iteration > 0:
+            change = max(abs(r - previous_r), abs(wrap_angle(alpha - previous_alpha)))
+            if change <= _IRLS_TOLERANCE * (1.0 + r):
+                break  # the weights this line was fitted with are its own, to rounding
+        _weights(directions, alpha, sigma_m, floor_sigma_m, weights)
+    return found, weights, r, alpha, spread, along, total, across
 
 
 def _finish_line_fit(
@@ -213,19 +267,33 @@ def _finish_line_fit(
     """Covariance (derived in the module docstring) and residuals of a fitted line."""
     if not (line.spread > 0.0 and math.isfinite(line.spread)):
         return FitRejection(RejectReason.DEGENERATE, "no extent along the line")
-    c, s = math.cos(line.alpha_rad), math.sin(line.alpha_rad)
-    residuals = q @ np.array([c, s])
-    residuals -= line.r_m - shift_x * c - shift_y * s
+    rms, worst, chi_square = _residual_figures(
+        q, weights, line.r_m, line.alpha_rad, shift_x, shift_y
+    )
     var_alpha = 1.0 / line.spread
     lever = line.along_m
     var_r = 1.0 / line.total + lever * lever * var_alpha
     cov_r_alpha = lever * var_alpha
-    squares = np.multiply(residuals, residuals, out=residuals)
-    rms = math.sqrt(float(np.add.reduce(squares)) / q.shape[0])
-    worst = math.sqrt(float(np.maximum.reduce(squares)))
-    chi_square = float(weights @ squares)
     finite = math.isfinite(var_r) and math.isfinite(cov_r_alpha) and math.isfinite(var_alpha)
     if not (finite and math.isfinite(rms + chi_square + line.r_m)):
         return FitRejection(RejectReason.NON_FINITE, "the fit overflowed")
     covariance = np.array([[var_r, cov_r_alpha], [cov_r_alpha, var_alpha]])
     return LineFit(line.r_m, line.alpha_rad, covariance, rms, worst, int(q.shape[0]), chi_square)
+
+
+@kernel
+def _residual_figures(q: FloatArray, weights: FloatArray, r_m: float, alpha_rad: float,
+                      shift_x: float, shift_y: float) -> tuple[float, float, float]:  # fmt: skip
+    """The residuals' rms, the largest residual and ``Σ w e²``."""
+    c, s = math.cos(alpha_rad), math.sin(alpha_rad)
+    offset = r_m - shift_x * c - shift_y * s
+    squares = 0.0
+    worst = 0.0
+    chi_square = 0.0
+    for k in range(q.shape[0]):
+        residual = q[k, 0] * c + q[k, 1] * s - offset
+        square = residual * residual
+        squares += square
+        worst = max(worst, square)  # a NaN makes the rms NaN: the fit is refused
+        chi_square += weights[k] * square
+    return math.sqrt(squares / q.shape[0]), math.sqrt(worst), chi_square

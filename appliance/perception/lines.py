@@ -37,6 +37,7 @@ import numpy as np
 import numpy.typing as npt
 
 from appliance.perception.gates import chi_square_quantile
+from appliance.perception.jit import kernel
 from appliance.perception.line_fit import (
     LineFit,
     RoughLine,
@@ -89,33 +90,44 @@ class LineParams:
 def split_breakpoints(xy_m: FloatArray, split_distance_m: float) -> list[int]:
     """Iterative end-point fit: sorted indices of the points the chords broke at,
     the first and the last point included."""
-    n = int(xy_m.shape[0])
-    if n == 0:
-        return []
-    breaks = {0, n - 1}
-    pending = [(0, n - 1)]
     xs, ys = np.ascontiguousarray(xy_m[:, 0]), np.ascontiguousarray(xy_m[:, 1])
+    breaks: list[int] = np.flatnonzero(_split(xs, ys, split_distance_m)).tolist()
+    return breaks
+
+
+@kernel
+def _split(xs: FloatArray, ys: FloatArray, split_distance_m: float) -> npt.NDArray[np.bool_]:
+    """`split_breakpoints` as a mask over the points."""
+    n = xs.shape[0]
+    breaks = np.zeros(n, dtype=np.bool_)
+    if n == 0:
+        return breaks
+    breaks[0] = breaks[n - 1] = True
+    pending = [(0, n - 1)]
     while pending:
         i, j = pending.pop()
         if j - i < 2:
             continue
-        xi, yi = float(xs[i]), float(ys[i])
-        chord_x, chord_y = float(xs[j]) - xi, float(ys[j]) - yi
+        xi, yi = xs[i], ys[i]
+        chord_x, chord_y = xs[j] - xi, ys[j] - yi
         length = math.hypot(chord_x, chord_y)
-        inner_x, inner_y = xs[i + 1 : j] - xi, ys[i + 1 : j] - yi
-        if length > 0.0:
-            distance = inner_x * chord_y
-            distance -= inner_y * chord_x
-            np.abs(distance, out=distance)
-            distance /= length
-        else:
-            distance = np.hypot(inner_x, inner_y)
-        k = int(distance.argmax())
-        if distance[k] > split_distance_m:
-            m = i + 1 + k
-            breaks.add(m)
-            pending += [(i, m), (m, j)]
-    return sorted(breaks)
+        farthest, k = -1.0, i + 1
+        for m in range(i + 1, j):
+            inner_x, inner_y = xs[m] - xi, ys[m] - yi
+            if length > 0.0:
+                distance = abs(inner_x * chord_y - inner_y * chord_x) / length
+            else:
+                distance = math.hypot(inner_x, inner_y)
+            if math.isnan(distance):  # numpy's argmax takes the first NaN: no split
+                farthest, k = distance, m
+                break
+            if distance > farthest:
+                farthest, k = distance, m
+        if farthest > split_distance_m:
+            breaks[k] = True
+            pending.append((i, k))
+            pending.append((k, j))
+    return breaks
 
 
 def _pieces(breaks: list[int]) -> list[tuple[int, int]]:

@@ -12,7 +12,7 @@ import scipy.optimize
 from hypothesis import given
 from hypothesis import strategies as st
 
-from appliance.perception.circle_search import radius_variance
+from appliance.perception.circle_search import normal_variance
 from appliance.perception.circles import (
     CircleFit,
     fit_circle_free,
@@ -230,12 +230,42 @@ def test_the_radius_check_decides_as_the_full_free_fit(seed: int) -> None:
     assert outcomes == {True, False}  # both answers were asked for
 
 
+def _sandwich_reference(xy: np.ndarray, fit: CircleFit, free: bool) -> np.ndarray:
+    """The covariance written out in numpy: J of the residuals at the solution, each
+    residual's variance from its beam's incidence, (JᵀJ)⁻¹ JᵀWJ (JᵀJ)⁻¹."""
+    offsets = xy - np.array([fit.cx_m, fit.cy_m])
+    radial = offsets / np.linalg.norm(offsets, axis=1)[:, None]
+    beams = xy / np.linalg.norm(xy, axis=1)[:, None]  # the scanner at the origin
+    weights = SCANNER.normal_variance(np.sum(beams * radial, axis=1))
+    jacobian = -np.column_stack([radial, np.ones(len(xy))]) if free else -radial
+    inverse = np.linalg.inv(jacobian.T @ jacobian)
+    full: np.ndarray = inverse @ (jacobian.T * weights) @ jacobian @ inverse
+    return full
+
+
 @pytest.mark.parametrize("seed", range(10))
-def test_the_radius_checks_variance_is_the_free_covariances(seed: int) -> None:
-    """The radius check's σ comes from a sandwich in floats; it is the free fit's
-    covariance entry to rounding."""
+def test_the_covariances_are_the_sandwich_written_out(seed: int) -> None:
+    """The compiled covariance of both fits against the same algebra in numpy."""
     xy = _arc(seed, n=int(np.random.default_rng(seed).integers(8, 40)))
-    fit = fit_circle_free(xy, (0.0, 0.0), SCANNER)
-    assert isinstance(fit, CircleFit) and fit._terms is not None and fit._beams is not None
-    variance = radius_variance(fit._beams, fit._terms, SCANNER)
-    assert variance == pytest.approx(fit.radius_sigma_m**2, rel=1e-12)
+    free = fit_circle_free(xy, (0.0, 0.0), SCANNER)
+    known = fit_circle_known_radius(xy, 0.15, (0.0, 0.0), SCANNER)
+    assert isinstance(free, CircleFit) and isinstance(known, CircleFit)
+    expected_free = _sandwich_reference(xy, free, free=True)
+    assert free.covariance == pytest.approx(expected_free[:2, :2], rel=1e-9, abs=1e-18)
+    assert free.radius_sigma_m**2 == pytest.approx(expected_free[2, 2], rel=1e-9)
+    expected = _sandwich_reference(xy, known, free=False)
+    assert known.covariance == pytest.approx(expected, rel=1e-9, abs=1e-18)
+
+
+@given(
+    st.floats(1e-4, 0.1),
+    st.sampled_from([0.0, 1e-9, 1e-4, 1e-3]),
+    st.floats(-1.0, 1.0),
+)
+def test_one_points_variance_is_the_scanner_models(
+    sigma_m: float, floor_sigma_m: float, cos_incidence: float
+) -> None:
+    """The compiled per-point noise is `ScannerModel.normal_variance` of that point."""
+    scanner = ScannerModel(sigma_m=sigma_m, floor_sigma_m=floor_sigma_m)
+    expected = float(scanner.normal_variance(np.array([cos_incidence]))[0])
+    assert normal_variance(sigma_m, floor_sigma_m, cos_incidence) == expected
