@@ -55,7 +55,7 @@ from appliance.localization.rear_steer_odometry import (
     predict_through,
     rear_steer_motion,
 )
-from appliance.perception.features import DiscRoi, FeatureParams, extract_features, warm_up
+from appliance.perception.features import DiscRoi, FeatureParams, extract_features
 from appliance.perception.types import CircleFeature, ScanFeatures
 from drivers.geometry import Pose2D
 
@@ -211,7 +211,6 @@ class LandmarkLocalizer:
         self._index = {lm.name: i for i, lm in enumerate(landmark_map.landmarks)}
         self.ekf = LauncherEkf(self.params.ekf)
         self._odometry = OdometryHistory(self.params.odometry)
-        warm_up()  # the features' kernels compiled now, not at the first scan
         self.reset()
 
     def reset(

@@ -47,7 +47,7 @@ from appliance.localization.localizer_params import (
     LocalizerParams,
     ScannerSetup,
 )
-from appliance.perception.features import DiscRoi, LineRoi, extract_features, warm_up
+from appliance.perception.features import DiscRoi, LineRoi, extract_features
 from appliance.perception.types import CircleFeature, LineFeature, ScanFeatures
 from drivers.geometry import Pose2D
 
@@ -148,7 +148,6 @@ class LauncherLocalizer:
         self._landmarks_xy = [(lm.x_m, lm.y_m) for lm in self._cylinders]
         self.ekf = LauncherEkf(self.params.ekf)
         self.motion = BoardMotion(self.params.board_motion)
-        warm_up()  # the features' kernels compiled now, not at the first scan
         self.reset()
 
     def reset(self) -> None:

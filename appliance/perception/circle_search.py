@@ -20,7 +20,7 @@ import math
 
 import numpy as np
 
-from appliance.perception.jit import kernel
+from appliance.perception.jit import BOOL, F64, I64, IN_1D, IN_2D, OUT_1D, OUT_2D, kernel
 from appliance.perception.types import FloatArray
 
 STEP_TOLERANCE = 1e-12
@@ -28,7 +28,7 @@ ROUNDING = 1.0 + 1e-14
 _TINY = 1e-300  # keeps the damped diagonal positive where a column is all zero
 
 
-@kernel
+@kernel(IN_1D, IN_1D, F64, F64, F64, OUT_2D)
 def terms(xs: FloatArray, ys: FloatArray, cx: float, cy: float, radius_m: float,
           sums: FloatArray) -> bool:  # fmt: skip
     """The pairwise sums of the rows at centre (cx, cy) and radius ``radius_m``, written
@@ -68,7 +68,7 @@ def terms(xs: FloatArray, ys: FloatArray, cx: float, cy: float, radius_m: float,
     return finite
 
 
-@kernel
+@kernel(IN_1D, IN_1D, F64, F64, F64)
 def residuals(xs: FloatArray, ys: FloatArray, cx: float, cy: float, radius_m: float) -> FloatArray:
     """``|p_i − c| − R`` per point."""
     out = np.empty(xs.shape[0])
@@ -82,25 +82,7 @@ def residuals(xs: FloatArray, ys: FloatArray, cx: float, cy: float, radius_m: fl
 # curvature adds g[1][4] and g[0][3] on the diagonal, −g[0][4] and −g[1][3] off it.
 
 
-@kernel
-def step(g: FloatArray, damping: float, free: bool, out: FloatArray) -> bool:
-    """The damped Newton step ``(H + λ diag(JᵀJ)) s = −Jᵀr`` over (cx, cy) or, ``free``,
-    (cx, cy, R), into ``out``; False if the system is singular or the step not finite."""
-    a = g[0, 0] + g[1, 4] + damping * (g[0, 0] + _TINY)
-    b = g[0, 1] - g[0, 4]
-    c = g[0, 1] - g[1, 3]
-    d = g[1, 1] + g[0, 3] + damping * (g[1, 1] + _TINY)
-    if not free:
-        return _solve_2x2(a, b, c, d, g[0, 2], g[1, 2], out)
-    rows = np.empty((3, 4))
-    rows[0, 0], rows[0, 1], rows[0, 2], rows[0, 3] = a, b, g[0, 5], g[0, 2]
-    rows[1, 0], rows[1, 1], rows[1, 2], rows[1, 3] = c, d, g[1, 5], g[1, 2]
-    rows[2, 0], rows[2, 1] = g[0, 5], g[1, 5]
-    rows[2, 2], rows[2, 3] = g[5, 5] + damping * (g[5, 5] + _TINY), g[2, 5]
-    return _solve_3x3(rows, out)
-
-
-@kernel
+@kernel(F64, F64, F64, F64, F64, F64, OUT_1D)
 def _solve_2x2(a: float, b: float, c: float, d: float, u: float, v: float,
                out: FloatArray) -> bool:  # fmt: skip
     """``[[a, b], [c, d]] s = [u, v]`` by Gaussian elimination with partial pivoting."""
@@ -120,7 +102,7 @@ def _solve_2x2(a: float, b: float, c: float, d: float, u: float, v: float,
     return math.isfinite(first) and math.isfinite(second)
 
 
-@kernel
+@kernel(OUT_2D, OUT_1D)
 def _solve_3x3(rows: FloatArray, out: FloatArray) -> bool:
     """The 3x3 system of the augmented ``rows`` ``[a, b, c, u]`` (overwritten), as
     `_solve_2x2`."""
@@ -152,7 +134,7 @@ def _solve_3x3(rows: FloatArray, out: FloatArray) -> bool:
     return math.isfinite(first) and math.isfinite(second) and math.isfinite(third)
 
 
-@kernel
+@kernel(IN_1D)
 def _largest_magnitude(values: FloatArray) -> float:
     largest = 0.0
     for value in values:
@@ -160,7 +142,25 @@ def _largest_magnitude(values: FloatArray) -> float:
     return largest
 
 
-@kernel
+@kernel(IN_2D, F64, BOOL, OUT_1D)
+def step(g: FloatArray, damping: float, free: bool, out: FloatArray) -> bool:
+    """The damped Newton step ``(H + λ diag(JᵀJ)) s = −Jᵀr`` over (cx, cy) or, ``free``,
+    (cx, cy, R), into ``out``; False if the system is singular or the step not finite."""
+    a = g[0, 0] + g[1, 4] + damping * (g[0, 0] + _TINY)
+    b = g[0, 1] - g[0, 4]
+    c = g[0, 1] - g[1, 3]
+    d = g[1, 1] + g[0, 3] + damping * (g[1, 1] + _TINY)
+    if not free:
+        return _solve_2x2(a, b, c, d, g[0, 2], g[1, 2], out)
+    rows = np.empty((3, 4))
+    rows[0, 0], rows[0, 1], rows[0, 2], rows[0, 3] = a, b, g[0, 5], g[0, 2]
+    rows[1, 0], rows[1, 1], rows[1, 2], rows[1, 3] = c, d, g[1, 5], g[1, 2]
+    rows[2, 0], rows[2, 1] = g[0, 5], g[1, 5]
+    rows[2, 2], rows[2, 3] = g[5, 5] + damping * (g[5, 5] + _TINY), g[2, 5]
+    return _solve_3x3(rows, out)
+
+
+@kernel(IN_1D, IN_1D, IN_1D, F64, I64)
 def minimise(xs: FloatArray, ys: FloatArray, start: FloatArray, radius_m: float,
              max_iterations: int) -> tuple[FloatArray, FloatArray, bool]:  # fmt: skip
     """Levenberg–Marquardt on the exact Hessian from ``start``: (x, the sums at x,
@@ -204,7 +204,7 @@ def minimise(xs: FloatArray, ys: FloatArray, start: FloatArray, radius_m: float,
     return x, current, False
 
 
-@kernel
+@kernel(F64, F64, F64)
 def normal_variance(sigma_m: float, floor_sigma_m: float, cos_incidence: float) -> float:
     """`ScannerModel.normal_variance` of one point (a test holds the two together)."""
     variance = sigma_m * cos_incidence
@@ -214,7 +214,48 @@ def normal_variance(sigma_m: float, floor_sigma_m: float, cos_incidence: float) 
     return variance if floor_sigma_m**2 >= lowest else max(variance, lowest)
 
 
-@kernel
+@kernel(IN_2D, IN_2D)
+def _sandwich(outer: FloatArray, middle: FloatArray) -> FloatArray:
+    """``A M A`` in loops: a 2x2 or 3x3 product is a few dozen operations, and BLAS would
+    round it differently on different CPUs."""
+    size = outer.shape[0]
+    left = np.zeros((size, size))
+    for i in range(size):
+        for k in range(size):
+            for j in range(size):
+                left[i, j] += outer[i, k] * middle[k, j]
+    result = np.zeros((size, size))
+    for i in range(size):
+        for k in range(size):
+            for j in range(size):
+                result[i, j] += left[i, k] * outer[k, j]
+    return result
+
+
+@kernel(IN_2D, OUT_2D)
+def _inverse_symmetric(m: FloatArray, out: FloatArray) -> bool:
+    """The inverse of a symmetric 2x2 or 3x3 ``m`` by cofactors into ``out``; False if
+    singular."""
+    if m.shape[0] == 2:
+        a, b, d = m[0, 0], m[0, 1], m[1, 1]
+        det = a * d - b * b
+        if not (det != 0.0 and math.isfinite(det)):
+            return False
+        out[0, 0], out[0, 1], out[1, 0], out[1, 1] = d / det, -b / det, -b / det, a / det
+        return True
+    a, b, c, e, f, i = m[0, 0], m[0, 1], m[0, 2], m[1, 1], m[1, 2], m[2, 2]
+    co_a, co_b, co_c = e * i - f * f, c * f - b * i, b * f - c * e
+    det = a * co_a + b * co_b + c * co_c
+    if not (det != 0.0 and math.isfinite(det)):
+        return False
+    co_e, co_f, co_i = a * i - c * c, b * c - a * f, a * e - b * b
+    out[0, 0], out[0, 1], out[0, 2] = co_a / det, co_b / det, co_c / det
+    out[1, 0], out[1, 1], out[1, 2] = co_b / det, co_e / det, co_f / det
+    out[2, 0], out[2, 1], out[2, 2] = co_c / det, co_f / det, co_i / det
+    return True
+
+
+@kernel(IN_1D, IN_1D, F64, F64, IN_1D, F64, IN_2D, F64, F64)
 def covariance(xs: FloatArray, ys: FloatArray, origin_x_m: float, origin_y_m: float,
                x: FloatArray, radius_m: float, g: FloatArray, sigma_m: float,
                floor_sigma_m: float) -> tuple[FloatArray, bool]:  # fmt: skip
@@ -261,48 +302,7 @@ def covariance(xs: FloatArray, ys: FloatArray, origin_x_m: float, origin_y_m: fl
     return result, finite
 
 
-@kernel
-def _sandwich(outer: FloatArray, middle: FloatArray) -> FloatArray:
-    """``A M A`` in loops: a 2x2 or 3x3 product is a few dozen operations, and BLAS would
-    round it differently on different CPUs."""
-    size = outer.shape[0]
-    left = np.zeros((size, size))
-    for i in range(size):
-        for k in range(size):
-            for j in range(size):
-                left[i, j] += outer[i, k] * middle[k, j]
-    result = np.zeros((size, size))
-    for i in range(size):
-        for k in range(size):
-            for j in range(size):
-                result[i, j] += left[i, k] * outer[k, j]
-    return result
-
-
-@kernel
-def _inverse_symmetric(m: FloatArray, out: FloatArray) -> bool:
-    """The inverse of a symmetric 2x2 or 3x3 ``m`` by cofactors into ``out``; False if
-    singular."""
-    if m.shape[0] == 2:
-        a, b, d = m[0, 0], m[0, 1], m[1, 1]
-        det = a * d - b * b
-        if not (det != 0.0 and math.isfinite(det)):
-            return False
-        out[0, 0], out[0, 1], out[1, 0], out[1, 1] = d / det, -b / det, -b / det, a / det
-        return True
-    a, b, c, e, f, i = m[0, 0], m[0, 1], m[0, 2], m[1, 1], m[1, 2], m[2, 2]
-    co_a, co_b, co_c = e * i - f * f, c * f - b * i, b * f - c * e
-    det = a * co_a + b * co_b + c * co_c
-    if not (det != 0.0 and math.isfinite(det)):
-        return False
-    co_e, co_f, co_i = a * i - c * c, b * c - a * f, a * e - b * b
-    out[0, 0], out[0, 1], out[0, 2] = co_a / det, co_b / det, co_c / det
-    out[1, 0], out[1, 1], out[1, 2] = co_b / det, co_e / det, co_f / det
-    out[2, 0], out[2, 1], out[2, 2] = co_c / det, co_f / det, co_i / det
-    return True
-
-
-@kernel
+@kernel(IN_2D)
 def positive_definite_free(g: FloatArray) -> bool:
     """Whether the free fit's Hessian in the sums ``g`` is (Sylvester's criterion on its
     symmetric part)."""
@@ -316,7 +316,7 @@ def positive_definite_free(g: FloatArray) -> bool:
     )
 
 
-@kernel
+@kernel(IN_1D, IN_1D, F64, F64, IN_1D, IN_2D, F64, F64, F64, F64)
 def surely_agrees(xs: FloatArray, ys: FloatArray, origin_x_m: float, origin_y_m: float,
                   known: FloatArray, g_known: FloatArray, sigma_m: float, floor_sigma_m: float,
                   tolerance_m: float, sigmas: float) -> bool:  # fmt: skip

@@ -12,13 +12,13 @@ as the numpy code it replaces, and never raises), no fast-math (no reassociation
 multiply-add: sums are taken in order, so a result is the same on every CPU, in the
 daemon, in simulation and in replay).
 
-A kernel compiles on its first call with given argument types (seconds on a small
-machine); a process that runs the features on a clock calls `features.warm_up` first
-(the localizers do, when they are built), which makes those calls on a made-up scan.
-Compiled code is cached on disk (``__pycache__`` beside the source, or the directory
-``NUMBA_CACHE_DIR`` names: the systemd unit gives it its cache directory), so only the
-first start after an install compiles. Where no cache directory is writable, the kernels
-are compiled at every start instead: slower to start, the same results.
+Each kernel is compiled for its declared argument types when its module is imported,
+never on a call: a process on a clock never waits for the compiler. Compiled code is
+cached on disk (``__pycache__`` beside the source, or the directory ``NUMBA_CACHE_DIR``
+names: the systemd unit gives it its cache directory), so only the first start after an
+install compiles (~7 s on a slow two-core machine; loading them is under a second).
+Where no cache directory is writable, the kernels are compiled at every start instead:
+slower to start, the same results.
 """
 
 from __future__ import annotations
@@ -27,8 +27,20 @@ from collections.abc import Callable
 from typing import Any, TypeVar, cast
 
 import numba
+from numba import types
 
 F = TypeVar("F", bound=Callable[..., Any])
+
+# Argument types. Arrays read are read-only of any layout: every float64 array of that
+# many dimensions converts to them (C or strided, writable or not), so one compiled
+# version serves every caller. Arrays written are writable.
+F64 = types.float64
+I64 = types.int64
+BOOL = types.boolean
+IN_1D = types.Array(types.float64, 1, "A", readonly=True)
+IN_2D = types.Array(types.float64, 2, "A", readonly=True)
+OUT_1D = types.Array(types.float64, 1, "A")
+OUT_2D = types.Array(types.float64, 2, "A")
 
 _OPTIONS: dict[str, Any] = {"nogil": True, "error_model": "numpy", "fastmath": False}
 
@@ -36,18 +48,23 @@ _OPTIONS: dict[str, Any] = {"nogil": True, "error_model": "numpy", "fastmath": F
 KERNELS: list[Any] = []
 
 
-def kernel(function: F) -> F:
-    """``function`` compiled on its first call for the types it is called with (or
-    loaded from the cache): `features.warm_up` makes those calls before a clock runs."""
-    try:
-        compiled = numba.njit(cache=True, **_OPTIONS)(function)
-    except RuntimeError:  # "cannot cache function ...: no locator available"
-        compiled = numba.njit(cache=False, **_OPTIONS)(function)
-    KERNELS.append(compiled)
-    return cast(F, compiled)
+def kernel(*argument_types: Any) -> Callable[[F], F]:
+    """The function compiled for these argument types when it is defined (at import;
+    from the cache after the first time). Called with arguments that do not convert to
+    them it raises TypeError rather than compiling again: a compilation takes seconds,
+    and nothing on a clock may wait for one."""
+
+    def compile_(function: F) -> F:
+        try:
+            compiled = numba.njit(argument_types, cache=True, **_OPTIONS)(function)
+        except RuntimeError:  # "cannot cache function ...: no locator available"
+            compiled = numba.njit(argument_types, cache=False, **_OPTIONS)(function)
+        KERNELS.append(compiled)
+        return cast(F, compiled)
+
+    return compile_
 
 
 def compiled_signatures() -> dict[str, int]:
-    """How many type signatures each kernel has been compiled for: a first call with new
-    types compiles, which takes seconds, so on a clock there should be none."""
+    """How many type signatures each kernel is compiled for (one: its own)."""
     return {f"{k.py_func.__module__}.{k.py_func.__qualname__}": len(k.signatures) for k in KERNELS}

@@ -30,7 +30,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from appliance.perception.jit import kernel
+from appliance.perception.jit import F64, I64, IN_1D, IN_2D, OUT_1D, kernel
 from appliance.perception.types import FitRejection, FloatArray, RejectReason, ScannerModel
 
 _IRLS_TOLERANCE = 1e-12
@@ -50,7 +50,7 @@ class LineFit:
     chi_square: float  # Σ (residual / its σ)²
 
 
-@kernel
+@kernel(F64)
 def wrap_angle(angle_rad: float) -> float:
     """The angle in (−π, π]."""
     wrapped = math.atan2(math.sin(angle_rad), math.cos(angle_rad))
@@ -104,7 +104,7 @@ def line_from_list(sums: list[float], shift_x: float, shift_y: float) -> RoughLi
     return RoughLine(*line) if found else None
 
 
-@kernel
+@kernel(F64, F64, F64, F64, F64, F64, F64, F64)
 def _rough_line(total: float, sx: float, sy: float, sxx: float, syy: float, sxy: float,
                 shift_x: float, shift_y: float
                 ) -> tuple[bool, float, float, float, float, float, float]:  # fmt: skip
@@ -140,7 +140,7 @@ def tls_line(xy_m: FloatArray, weights: FloatArray | None = None) -> tuple[float
     return None if line is None else (line.r_m, line.alpha_rad)
 
 
-@kernel
+@kernel(IN_2D, F64, F64, F64, OUT_1D)
 def _weights(directions: FloatArray, alpha: float, sigma_m: float, floor_sigma_m: float,
              out: FloatArray) -> None:  # fmt: skip
     """Each point's weight, 1 / the variance of its offset along the normal at ``alpha``
@@ -156,7 +156,7 @@ def _weights(directions: FloatArray, alpha: float, sigma_m: float, floor_sigma_m
         out[k] = 1.0 / variance
 
 
-@kernel
+@kernel(IN_1D, IN_2D, OUT_1D)
 def _weighted_sums(weights: FloatArray, moments: FloatArray, out: FloatArray) -> None:
     """``weights @ moments`` into ``out``, the points added in order."""
     for j in range(6):
@@ -233,7 +233,7 @@ def fit_line_moments(
     return _finish_line_fit(q, *shift_xy_m, RoughLine(*fields), weights)
 
 
-@kernel
+@kernel(IN_2D, IN_2D, F64, F64, F64, F64, F64, I64)
 def _irls(moments: FloatArray, directions: FloatArray, alpha_start_rad: float, sigma_m: float,
           floor_sigma_m: float, shift_x: float, shift_y: float, iterations: int
           ) -> tuple[bool, FloatArray, float, float, float, float, float, float]:  # fmt: skip
@@ -281,7 +281,7 @@ def _finish_line_fit(
     return LineFit(line.r_m, line.alpha_rad, covariance, rms, worst, int(q.shape[0]), chi_square)
 
 
-@kernel
+@kernel(IN_2D, IN_1D, F64, F64, F64, F64)
 def _residual_figures(q: FloatArray, weights: FloatArray, r_m: float, alpha_rad: float,
                       shift_x: float, shift_y: float) -> tuple[float, float, float]:  # fmt: skip
     """The residuals' rms, the largest residual and ``Σ w e²``."""

@@ -37,7 +37,7 @@ import numpy as np
 import numpy.typing as npt
 
 from appliance.perception.gates import chi_square_quantile
-from appliance.perception.jit import kernel
+from appliance.perception.jit import F64, IN_1D, kernel
 from appliance.perception.line_fit import (
     LineFit,
     RoughLine,
@@ -95,7 +95,7 @@ def split_breakpoints(xy_m: FloatArray, split_distance_m: float) -> list[int]:
     return breaks
 
 
-@kernel
+@kernel(IN_1D, IN_1D, F64)
 def _split(xs: FloatArray, ys: FloatArray, split_distance_m: float) -> npt.NDArray[np.bool_]:
     """`split_breakpoints` as a mask over the points."""
     n = xs.shape[0]

@@ -8,31 +8,23 @@ import os
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 
 from appliance.localization.launcher_localizer import LauncherLocalizer, ScannerSetup
-from appliance.perception.features import extract_features, warm_up, warm_up_scan
 from appliance.perception.jit import compiled_signatures
 from appliance.sim import load_site
-from drivers.geometry import Pose2D
 
 from .scenes import MOUNTS, SENSOR_ANGLES, render, vehicle_before_board
 
 
-def test_the_warm_up_scan_shows_a_cylinder_and_the_board() -> None:
-    """Else the warm-up would leave the cylinder's kernels to the first real scan."""
-    ranges, angles = warm_up_scan()
-    found = extract_features(ranges, angles, Pose2D(0.0, 0.0, 0.0))
-    assert len(found.circles) == 1 and abs(found.circles[0].cx_m - 3.0) < 0.01
-    assert any(abs(line.r_m - 4.0) < 0.01 for line in found.lines)
-
-
-def test_after_the_warm_up_localizing_compiles_nothing() -> None:
-    """A first call with new argument types compiles for seconds: in the daemon that
-    would be a stalled scan. From far out to the board, the first pose from whole scans
-    and then tracking in regions of interest, nothing new is compiled."""
-    warm_up()
+def test_every_kernel_is_compiled_once_at_import_and_localizing_adds_none() -> None:
+    """A compilation takes seconds: in the daemon that would be a stalled scan. Every
+    kernel is compiled for its one signature when imported, and from far out to the
+    board (the first pose from whole scans, then tracking in regions of interest, the
+    arrays as the scans and the fits make them) nothing calls for another."""
     before = compiled_signatures()
+    assert before and set(before.values()) == {1}, before
     site = load_site("launcher")
     poses = 0
     for step, distance_m in enumerate((10.0, 5.0, 2.0, 1.0, 0.4)):
@@ -48,11 +40,21 @@ def test_after_the_warm_up_localizing_compiles_nothing() -> None:
     assert poses >= 4  # it localized: the kernels ran on real work
 
 
+def test_a_kernel_called_with_the_wrong_types_refuses_rather_than_compiles() -> None:
+    from appliance.perception.circle_search import residuals
+
+    with pytest.raises(TypeError, match="No matching definition"):
+        residuals(np.arange(3), np.arange(3), 0.0, 0.0, 1.0)  # integer arrays
+    assert residuals(np.arange(3.0)[::-1], np.zeros(3), 0.0, 0.0, 1) == pytest.approx(
+        [1.0, 0.0, -1.0]
+    )  # strided, an integer radius: converted
+
+
 _SCRIPT = """
 import json, numpy as np
 from appliance.perception.circles import fit_circle_free, fit_circle_known_radius
 from appliance.perception.circles import free_radius_mismatch
-from appliance.perception.features import extract_features, warm_up_scan
+from appliance.perception.features import extract_features
 from appliance.perception.types import ScannerModel
 from drivers.geometry import Pose2D
 rng = np.random.default_rng(3)
@@ -66,8 +68,18 @@ for n in (5, 12, 40):
     out.append([known.cx_m, known.cy_m, *known.covariance.ravel().tolist(), free.radius_m,
                 free.radius_sigma_m, free_radius_mismatch(xy, known, (0.0, 0.0),
                 ScannerModel(), 0.001, 0.0)])
-ranges, angles = warm_up_scan()
+angles = np.linspace(-0.75 * np.pi, 0.75 * np.pi, 1081)
+c, s = np.cos(angles), np.sin(angles)
+with np.errstate(divide="ignore", invalid="ignore"):
+    board = np.where((c > 0) & (np.abs(4 * s / c) <= 1.5), 4 / c, np.inf)
+    gap = (3 * c) ** 2 - (9 - 0.15**2)  # a cylinder 3 m ahead, the nearer root
+    cylinder = np.where(gap >= 0, 3 * c - np.sqrt(gap), np.inf)
+hit = np.flatnonzero(np.isfinite(cylinder))
+cylinder[hit[0] - 1], cylinder[hit[-1] + 1] = cylinder[hit[0]], cylinder[hit[-1]]  # footprint
+ranges = np.fmin(board, cylinder)
+ranges = np.where(np.isfinite(ranges), ranges + 0.004 * np.sin(np.arange(1081) * 1.7), 0.0)
 found = extract_features(ranges, angles, Pose2D(0.1, 0.2, 0.3))
+assert len(found.circles) == 1 and len(found.lines) >= 1
 out.append([[f.r_m, f.alpha_rad, *f.covariance.ravel().tolist()] for f in found.lines])
 out.append([[f.cx_m, f.cy_m, f.rms_m] for f in found.circles])
 out.append(sorted(found.rejections.items()))
