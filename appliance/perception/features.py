@@ -194,4 +194,3 @@ def extract_mounted_features(
         rois,
         range_offset_m=range_offset_m,
     )
-
