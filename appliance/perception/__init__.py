@@ -13,5 +13,6 @@ their least-squares search in ``circle_search``) with ``cylinders`` (when an arc
 landmark), and ``features`` (the whole scan, with regions of interest). ``types`` holds
 what comes out (`ScanFeatures`, `LineFeature`, `CircleFeature`, `FitRejection`) and what
 the fits assume of the scanner (`ScannerModel`); ``gates`` the χ² quantile the tests
-share.
+share. ``jit`` compiles the few loops numpy cannot make cheap on a few dozen points (the
+circle search, the weighted line's iterations, the chord split), at import.
 """
