@@ -360,5 +360,169 @@ def surely_agrees(xs: FloatArray, ys: FloatArray, origin_x_m: float, origin_y_m:
     return False
 
 
+# Outcomes of the kernels below; `circles` names them as `RejectReason`s.
+OK, TOO_FEW, NON_FINITE, DEGENERATE, COLLINEAR, NOT_CONVERGED = 0, 1, 2, 3, 4, 5
+_RESOLUTION = 1e-10  # a spread below this fraction of the coordinates is rounding
+
+
+@kernel(IN_1D, IN_1D)
+def taubin(xs: FloatArray, ys: FloatArray) -> tuple[int, float, float, float]:
+    """Taubin's algebraic circle fit: (outcome, cx, cy, R).
+
+    Minimises ``Σ (A z + B x + C y + D)²`` (``z = x² + y²``) subject to the mean squared
+    gradient ``4A² z̄ + B² + C² = 1`` of centred data, where ``D = −A z̄`` drops out: the
+    smallest generalised eigenvector of a 3x3 problem. Data are centred and scaled to
+    unit rms radius first (so ``z̄ = 1``), so any unit conditions alike.
+    """
+    n = xs.shape[0]
+    if n < 3:
+        return TOO_FEW, 0.0, 0.0, 0.0
+    mean_x = mean_y = 0.0
+    for k in range(n):
+        if not (math.isfinite(xs[k]) and math.isfinite(ys[k])):
+            return NON_FINITE, 0.0, 0.0, 0.0
+        mean_x += xs[k]
+        mean_y += ys[k]
+    mean_x /= n
+    mean_y /= n
+    spread = 0.0
+    for k in range(n):
+        spread += (xs[k] - mean_x) ** 2 + (ys[k] - mean_y) ** 2
+    scale = math.sqrt(spread / n)
+    magnitude = max(abs(mean_x), abs(mean_y))
+    if not (scale > _RESOLUTION * magnitude and scale > 0.0 and math.isfinite(scale)):
+        return DEGENERATE, 0.0, 0.0, 0.0
+    columns = np.empty((n, 3))
+    for k in range(n):
+        u, v = (xs[k] - mean_x) / scale, (ys[k] - mean_y) / scale
+        columns[k, 0], columns[k, 1], columns[k, 2] = u * u + v * v, u, v
+    z_mean = 0.0
+    for k in range(n):
+        z_mean += columns[k, 0]
+    z_mean /= n
+    half = np.array([0.5, 1.0, 1.0])
+    symmetric = np.zeros((3, 3))
+    for k in range(n):
+        columns[k, 0] -= z_mean
+        for i in range(3):
+            for j in range(3):
+                symmetric[i, j] += columns[k, i] * columns[k, j]
+    # T = diag(4 z̄, 1, 1), z̄ = 1: solve T^-1/2 K T^-1/2 b = η b, then a = T^-1/2 b.
+    for i in range(3):
+        for j in range(3):
+            symmetric[i, j] *= half[i] * half[j] / n
+            if not math.isfinite(symmetric[i, j]):
+                return NON_FINITE, 0.0, 0.0, 0.0
+    _, vectors = np.linalg.eigh(symmetric)
+    a, b, c = vectors[0, 0] * half[0], vectors[1, 0] * half[1], vectors[2, 0] * half[2]
+    if not abs(a) > 1e-9:
+        return COLLINEAR, 0.0, 0.0, 0.0
+    cx = mean_x - scale * b / (2.0 * a)
+    cy = mean_y - scale * c / (2.0 * a)
+    radius = scale / (2.0 * abs(a))
+    if not (math.isfinite(cx) and math.isfinite(cy) and math.isfinite(radius)):
+        return NON_FINITE, 0.0, 0.0, 0.0
+    return OK, cx, cy, radius
+
+
+@kernel(IN_1D, IN_1D, F64, F64, F64, F64, F64, BOOL, I64)
+def known_radius_fit(xs: FloatArray, ys: FloatArray, origin_x_m: float, origin_y_m: float,
+                     radius_m: float, start_x_m: float, start_y_m: float, has_start: bool,
+                     max_iterations: int) -> tuple[int, FloatArray, FloatArray]:  # fmt: skip
+    """The known-radius search (outcome, centre, the sums there), from ``start`` if
+    ``has_start`` (a refit after dropping a point starts from the previous centre), else
+    or then from the arc's middle point pushed back along its beam by the radius, then
+    from Taubin's centre."""
+    n = xs.shape[0]
+    if n < 2:
+        return TOO_FEW, np.zeros(2), np.zeros((6, 6))
+    for k in range(n):
+        if not (math.isfinite(xs[k]) and math.isfinite(ys[k])):
+            return NON_FINITE, np.zeros(2), np.zeros((6, 6))
+    guess = np.empty(2)
+    if has_start:
+        guess[0], guess[1] = start_x_m, start_y_m
+        x, sums, converged = minimise(xs, ys, guess, radius_m, max_iterations)
+        if converged:
+            return OK, x, sums
+    mx, my = xs[n // 2], ys[n // 2]
+    bx, by = mx - origin_x_m, my - origin_y_m
+    length = math.hypot(bx, by)
+    if length > 0.0:
+        guess[0], guess[1] = mx + radius_m * bx / length, my + radius_m * by / length
+        x, sums, converged = minimise(xs, ys, guess, radius_m, max_iterations)
+        if converged:
+            return OK, x, sums
+    outcome, guess[0], guess[1], _ = taubin(xs, ys)
+    if outcome == OK:
+        x, sums, converged = minimise(xs, ys, guess, radius_m, max_iterations)
+        if converged:
+            return OK, x, sums
+    return NOT_CONVERGED, guess, np.zeros((6, 6))
+
+
+@kernel(IN_1D, IN_1D, F64, F64, IN_1D, F64, IN_2D, F64, F64)
+def fit_figures(xs: FloatArray, ys: FloatArray, origin_x_m: float, origin_y_m: float,
+                x: FloatArray, radius_m: float, g: FloatArray, sigma_m: float,
+                floor_sigma_m: float) -> tuple[bool, FloatArray, FloatArray, float]:  # fmt: skip
+    """What a converged fit reports at ``x`` (sums ``g``): (the centre determined, its
+    `covariance`, the residuals, their rms)."""
+    centre, determined = covariance(
+        xs, ys, origin_x_m, origin_y_m, x, radius_m, g, sigma_m, floor_sigma_m
+    )
+    return (
+        determined,
+        centre,
+        residuals(xs, ys, x[0], x[1], radius_m),
+        math.sqrt(g[2, 2] / xs.shape[0]),
+    )
+
+
+@kernel(IN_1D, IN_1D, F64, F64, F64, I64, I64, F64, F64, F64)
+def trimmed_arc(xs: FloatArray, ys: FloatArray, origin_x_m: float, origin_y_m: float,
+                radius_m: float, max_iterations: int, min_points: int, edge_limit_m: float,
+                sigma_m: float, floor_sigma_m: float
+                ) -> tuple[int, int, int, FloatArray, FloatArray, FloatArray, float,
+                           float]:  # fmt: skip
+    """The known-radius fit of an arc, an end point farther off the circle than
+    ``edge_limit_m`` dropped (the farther end first) and the rest refitted from there,
+    while more than ``min_points`` remain: (outcome, first, stop of the points kept,
+    centre, its covariance, the sums there, residual rms, the points' mean range).
+
+    Why: a mixed echo at an end, the beam's footprint straddling the cylinder's edge,
+    pulls the centre off (`cylinders`)."""
+    first, stop = 0, xs.shape[0]
+    has_start, start_x, start_y = False, 0.0, 0.0
+    while True:
+        part_x, part_y = xs[first:stop], ys[first:stop]
+        outcome, x, sums = known_radius_fit(
+            part_x, part_y, origin_x_m, origin_y_m, radius_m, start_x, start_y, has_start,
+            max_iterations,
+        )  # fmt: skip
+        if outcome != OK:
+            return outcome, first, stop, x, np.zeros((2, 2)), sums, 0.0, 0.0
+        centre, determined = covariance(
+            part_x, part_y, origin_x_m, origin_y_m, x, radius_m, sums, sigma_m, floor_sigma_m
+        )
+        if not determined:
+            return DEGENERATE, first, stop, x, centre, sums, 0.0, 0.0
+        rms = math.sqrt(sums[2, 2] / (stop - first))
+        if not (math.isfinite(rms) and math.isfinite(x[0]) and math.isfinite(x[1])):
+            return NON_FINITE, first, stop, x, centre, sums, rms, 0.0
+        end_first = abs(math.hypot(xs[first] - x[0], ys[first] - x[1]) - radius_m)
+        end_last = abs(math.hypot(xs[stop - 1] - x[0], ys[stop - 1] - x[1]) - radius_m)
+        if stop - first <= min_points or max(end_first, end_last) <= edge_limit_m:
+            break
+        if end_first >= end_last:
+            first += 1
+        else:
+            stop -= 1
+        has_start, start_x, start_y = True, x[0], x[1]
+    total = 0.0
+    for k in range(first, stop):
+        total += math.hypot(xs[k] - origin_x_m, ys[k] - origin_y_m)
+    return OK, first, stop, x, centre, sums, rms, total / (stop - first)
+
+
 def coordinates(xy_m: FloatArray) -> tuple[FloatArray, FloatArray]:
     return np.ascontiguousarray(xy_m[:, 0]), np.ascontiguousarray(xy_m[:, 1])

@@ -29,12 +29,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from appliance.perception import circle_search as search
 from appliance.perception.circle_search import (
     coordinates,
-    covariance,
+    fit_figures,
+    known_radius_fit,
     minimise,
-    residuals,
     surely_agrees,
+    taubin,
     terms,
 )
 from appliance.perception.types import (
@@ -43,9 +45,6 @@ from appliance.perception.types import (
     RejectReason,
     ScannerModel,
 )
-
-# A spread below this fraction of the coordinates is rounding, not geometry.
-_RESOLUTION = 1e-10
 
 
 @dataclass(frozen=True, eq=False)
@@ -75,44 +74,28 @@ class CircleFit:
         return float(np.hypot(self._xs - ox, self._ys - oy).mean())
 
 
-def taubin_circle(xy_m: FloatArray) -> tuple[float, float, float] | FitRejection:
-    """Taubin's algebraic circle fit: (cx, cy, R), or why there is none.
+# The kernels' outcomes as the reasons a fit reports.
+REASONS = {
+    search.TOO_FEW: RejectReason.TOO_FEW_POINTS,
+    search.NON_FINITE: RejectReason.NON_FINITE,
+    search.DEGENERATE: RejectReason.DEGENERATE,
+    search.COLLINEAR: RejectReason.COLLINEAR,
+    search.NOT_CONVERGED: RejectReason.NOT_CONVERGED,
+}
+_DETAILS = {
+    search.DEGENERATE: "coincident points",
+    search.COLLINEAR: "the points lie on a line",
+}
 
-    Minimises ``Σ (A z + B x + C y + D)²`` (``z = x² + y²``) subject to the mean
-    squared gradient ``4A² z̄ + B² + C² = 1`` of centred data, where ``D = −A z̄``
-    drops out: the smallest generalised eigenvector of a 3x3 problem. Data are centred
-    and scaled to unit rms radius first (so ``z̄ = 1``), so any unit conditions alike.
-    """
-    n = int(xy_m.shape[0])
-    if n < 3:
-        return FitRejection(RejectReason.TOO_FEW_POINTS, f"{n} point(s)")
-    with np.errstate(all="ignore"):
-        if not np.isfinite(xy_m).all():
-            return FitRejection(RejectReason.NON_FINITE)
-        centroid = xy_m.mean(axis=0)
-        offsets = xy_m - centroid
-        scale = math.sqrt(float(np.mean(np.sum(offsets * offsets, axis=1))))
-        magnitude = float(np.max(np.abs(centroid)))
-        if not (scale > _RESOLUTION * magnitude and scale > 0.0 and math.isfinite(scale)):
-            return FitRejection(RejectReason.DEGENERATE, "coincident points")
-        u = offsets / scale
-        z = np.sum(u * u, axis=1)
-        columns = np.stack([z - z.mean(), u[:, 0], u[:, 1]], axis=1)
-        moments = columns.T @ columns / n
-        # T = diag(4 z̄, 1, 1), z̄ = 1: solve T^-1/2 K T^-1/2 b = η b, then a = T^-1/2 b.
-        half = np.array([0.5, 1.0, 1.0])
-        symmetric = moments * np.outer(half, half)
-        if not np.isfinite(symmetric).all():
-            return FitRejection(RejectReason.NON_FINITE)
-        _, vectors = np.linalg.eigh(symmetric)
-        a, b, c = vectors[:, 0] * half
-        if not abs(a) > 1e-9:
-            return FitRejection(RejectReason.COLLINEAR, "the points lie on a line")
-        cx = float(centroid[0] - scale * b / (2.0 * a))
-        cy = float(centroid[1] - scale * c / (2.0 * a))
-        radius = float(scale / (2.0 * abs(a)))
-    if not all(math.isfinite(v) for v in (cx, cy, radius)):
-        return FitRejection(RejectReason.NON_FINITE)
+
+def taubin_circle(xy_m: FloatArray) -> tuple[float, float, float] | FitRejection:
+    """Taubin's algebraic circle fit (`circle_search.taubin`): (cx, cy, R), or why
+    there is none."""
+    if xy_m.shape[0] < 3:
+        return FitRejection(RejectReason.TOO_FEW_POINTS, f"{xy_m.shape[0]} point(s)")
+    outcome, cx, cy, radius = taubin(*coordinates(xy_m))
+    if outcome != search.OK:
+        return FitRejection(REASONS[outcome], _DETAILS.get(outcome, ""))
     return cx, cy, radius
 
 
@@ -126,24 +109,24 @@ def _finish_fit(
     scanner: ScannerModel,
 ) -> CircleFit | FitRejection:
     radius = float(x[2]) if radius_m is None else radius_m
-    centre, determined = covariance(
+    determined, centre, fitted, rms = fit_figures(
         xs, ys, *origin_xy_m, x, radius, sums, scanner.sigma_m, scanner.floor_sigma_m
     )
     if not determined:
         return FitRejection(RejectReason.DEGENERATE, "the centre is not determined")
     radius_sigma = 0.0 if radius_m is not None else math.sqrt(max(float(centre[2, 2]), 0.0))
-    rms = math.sqrt(float(sums[2, 2]) / xs.shape[0])
-    if not (math.isfinite(rms) and math.isfinite(radius_sigma) and np.isfinite(x).all()):
+    cx, cy = float(x[0]), float(x[1])
+    if not all(map(math.isfinite, (rms, radius_sigma, cx, cy, radius))):
         return FitRejection(RejectReason.NON_FINITE)
     return CircleFit(
-        float(x[0]),
-        float(x[1]),
+        cx,
+        cy,
         radius,
-        centre[:2, :2].copy(),
+        centre[:2, :2],
         radius_sigma,
         rms,
         int(xs.shape[0]),
-        residuals(xs, ys, float(x[0]), float(x[1]), radius),
+        fitted,
         xs,
         ys,
         origin_xy_m,
@@ -163,34 +146,35 @@ def fit_circle_known_radius(
 
     ``origin_xy_m`` is the scanner's position in the points' frame: it gives each
     point's beam direction for the start and the covariance. ``start`` is tried first
-    (a refit after dropping a point starts from the previous centre). Never raises.
+    (a refit after dropping a point starts from the previous centre), then the middle
+    point pushed back along its beam, then Taubin's centre. Never raises.
     """
-    n = int(xy_m.shape[0])
+    if xy_m.shape[0] < 2:
+        return FitRejection(RejectReason.TOO_FEW_POINTS, f"{xy_m.shape[0]} point(s)")
+    xs, ys = coordinates(xy_m)
+    return fit_known_radius_xy(xs, ys, radius_m, origin_xy_m, scanner, max_iterations, start)
+
+
+def fit_known_radius_xy(
+    xs: FloatArray,
+    ys: FloatArray,
+    radius_m: float,
+    origin_xy_m: tuple[float, float],
+    scanner: ScannerModel,
+    max_iterations: int = 50,
+    start: tuple[float, float] | None = None,
+) -> CircleFit | FitRejection:
+    """`fit_circle_known_radius` of the points as two coordinate arrays."""
+    n = int(xs.shape[0])
     if n < 2:
         return FitRejection(RejectReason.TOO_FEW_POINTS, f"{n} point(s)")
-    with np.errstate(all="ignore"):
-        if not np.logical_and.reduce(np.isfinite(xy_m), axis=None):
-            return FitRejection(RejectReason.NON_FINITE)
-        mx, my = xy_m[n // 2].tolist()
-        bx, by = mx - origin_xy_m[0], my - origin_xy_m[1]
-        length = math.hypot(bx, by)
-        starts: list[list[float] | None] = [] if start is None else [list(start)]
-        if length > 0.0:
-            starts.append([mx + radius_m * bx / length, my + radius_m * by / length])
-        starts.append(None)  # Taubin's centre, computed only if the others fail
-        xs, ys = coordinates(xy_m)
-        for guess in starts:
-            if guess is None:
-                algebraic = taubin_circle(xy_m)
-                if isinstance(algebraic, FitRejection):
-                    break
-                guess = list(algebraic[:2])
-            centre, sums, converged = minimise(
-                xs, ys, np.array(guess, dtype=np.float64), radius_m, max_iterations
-            )
-            if converged:
-                return _finish_fit(xs, ys, origin_xy_m, centre, sums, radius_m, scanner)
-    return FitRejection(RejectReason.NOT_CONVERGED)
+    sx, sy = (0.0, 0.0) if start is None else start
+    outcome, centre, sums = known_radius_fit(
+        xs, ys, *origin_xy_m, radius_m, sx, sy, start is not None, max_iterations
+    )
+    if outcome != search.OK:
+        return FitRejection(REASONS[outcome])
+    return _finish_fit(xs, ys, origin_xy_m, centre, sums, radius_m, scanner)
 
 
 def fit_circle_free(
@@ -209,16 +193,15 @@ def fit_circle_free(
         start = algebraic
     if xy_m.shape[0] < 3:
         return FitRejection(RejectReason.TOO_FEW_POINTS, f"{xy_m.shape[0]} point(s)")
-    with np.errstate(all="ignore"):
-        if not np.isfinite(xy_m).all():
-            return FitRejection(RejectReason.NON_FINITE)
-        xs, ys = coordinates(xy_m)
-        x, sums, converged = minimise(
-            xs, ys, np.array(start, dtype=np.float64), math.nan, max_iterations
-        )
-        if not (converged and x[2] > 0.0):
-            return FitRejection(RejectReason.NOT_CONVERGED)
-        return _finish_fit(xs, ys, origin_xy_m, x, sums, None, scanner)
+    if not np.isfinite(xy_m).all():
+        return FitRejection(RejectReason.NON_FINITE)
+    xs, ys = coordinates(xy_m)
+    x, sums, converged = minimise(
+        xs, ys, np.array(start, dtype=np.float64), math.nan, max_iterations
+    )
+    if not (converged and x[2] > 0.0):
+        return FitRejection(RejectReason.NOT_CONVERGED)
+    return _finish_fit(xs, ys, origin_xy_m, x, sums, None, scanner)
 
 
 def free_radius_mismatch(
@@ -242,25 +225,40 @@ def free_radius_mismatch(
     a way), the fit would agree (`circle_search.surely_agrees`). Anything else is decided
     by the full fit.
     """
-    with np.errstate(all="ignore"):
-        if known._xs.shape[0] == xy_m.shape[0] and known._origin_xy_m == origin_xy_m:
-            xs, ys, sums = known._xs, known._ys, known._sums  # the same points, fitted
-        else:
-            xs, ys = coordinates(xy_m)
-            sums = None
-        centre = np.array([known.cx_m, known.cy_m, known.radius_m])
-        if sums is None:
-            sums = np.empty((6, 6))
-            terms(xs, ys, known.cx_m, known.cy_m, known.radius_m, sums)
-        if surely_agrees(
-            xs, ys, *origin_xy_m, centre, sums, scanner.sigma_m, scanner.floor_sigma_m,
-            tolerance_m, sigmas,
-        ):  # fmt: skip
-            return None
+    if known._xs.shape[0] == xy_m.shape[0] and known._origin_xy_m == origin_xy_m:
+        xs, ys, sums = known._xs, known._ys, known._sums  # the same points, fitted
+    else:
+        xs, ys = coordinates(xy_m)
+        sums = np.empty((6, 6))
+        terms(xs, ys, known.cx_m, known.cy_m, known.radius_m, sums)
+    centre = (known.cx_m, known.cy_m, known.radius_m)
+    return free_radius_mismatch_xy(
+        xs, ys, centre, sums, origin_xy_m, scanner, tolerance_m, sigmas, max_iterations
+    )
+
+
+def free_radius_mismatch_xy(
+    xs: FloatArray,
+    ys: FloatArray,
+    known: tuple[float, float, float],
+    sums: FloatArray,
+    origin_xy_m: tuple[float, float],
+    scanner: ScannerModel,
+    tolerance_m: float,
+    sigmas: float,
+    max_iterations: int = 50,
+) -> float | None:
+    """`free_radius_mismatch` of the points as coordinate arrays, ``known`` (cx, cy, R)
+    their known-radius fit and ``sums`` its search's sums there."""
+    if surely_agrees(
+        xs, ys, *origin_xy_m, np.array(known), sums, scanner.sigma_m, scanner.floor_sigma_m,
+        tolerance_m, sigmas,
+    ):  # fmt: skip
+        return None
     free = fit_circle_free(
-        xy_m, origin_xy_m, scanner, max_iterations, start=(known.cx_m, known.cy_m, known.radius_m)
+        np.column_stack((xs, ys)), origin_xy_m, scanner, max_iterations, start=known
     )
     if isinstance(free, FitRejection):
         return None
     allowed = tolerance_m + sigmas * free.radius_sigma_m
-    return free.radius_m if abs(free.radius_m - known.radius_m) > allowed else None
+    return free.radius_m if abs(free.radius_m - known[2]) > allowed else None

@@ -32,7 +32,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from appliance.perception.circles import fit_circle_known_radius, free_radius_mismatch
+from appliance.perception import circle_search as search
+from appliance.perception.circle_search import coordinates, trimmed_arc
+from appliance.perception.circles import REASONS, free_radius_mismatch_xy
 from appliance.perception.gates import chi_square_quantile
 from appliance.perception.points import ScanPoints
 from appliance.perception.types import (
@@ -173,40 +175,30 @@ def fit_cylinder(
         reach = scanner.footprint_half_angle_rad(range_m) / max(beam_step, 1e-9)
         trim = min(math.ceil(reach), (stop - start - params.min_points) // 2)
         first, last = start + trim, stop - trim
-    previous: tuple[float, float] | None = None
-    while True:
-        fit = fit_circle_known_radius(
-            points.xy_m[first:last],
-            params.radius_m,
-            points.origin_xy_m,
-            scanner,
-            params.max_iterations,
-            start=previous,
-        )
-        if isinstance(fit, FitRejection):
-            return fit
-        end_first, end_last = abs(float(fit.residuals_m[0])), abs(float(fit.residuals_m[-1]))
-        if (
-            last - first <= params.min_points
-            or max(end_first, end_last) <= params.edge_trim_sigmas * scanner.sigma_m
-        ):
-            break
-        first, last = (first + 1, last) if end_first >= end_last else (first, last - 1)
-        previous = (fit.cx_m, fit.cy_m)
-    allowed_rms = scanner.sigma_m * math.sqrt(
-        chi_square_quantile(fit.n_points - 2, params.rms_gate_z) / fit.n_points
-    )
-    if fit.rms_m > allowed_rms:
-        return FitRejection(RejectReason.RMS_TOO_LARGE, f"rms {fit.rms_m * 1e3:.1f} mm")
-    used = points.xy_m[first:last]
+    xs, ys = coordinates(points.xy_m[first:last])
     ox, oy = points.origin_xy_m
-    centre_range = math.hypot(fit.cx_m - ox, fit.cy_m - oy)
-    if centre_range - fit.mean_range_m < params.facing_fraction * params.radius_m:
+    outcome, kept_first, kept_stop, centre, covariance, sums, rms, mean_range_m = trimmed_arc(
+        xs, ys, ox, oy, params.radius_m, params.max_iterations, params.min_points,
+        params.edge_trim_sigmas * scanner.sigma_m, scanner.sigma_m, scanner.floor_sigma_m,
+    )  # fmt: skip
+    if outcome != search.OK:
+        detail = "the centre is not determined" if outcome == search.DEGENERATE else ""
+        return FitRejection(REASONS[outcome], detail)
+    n_points = kept_stop - kept_first
+    allowed_rms = scanner.sigma_m * math.sqrt(
+        chi_square_quantile(n_points - 2, params.rms_gate_z) / n_points
+    )
+    if rms > allowed_rms:
+        return FitRejection(RejectReason.RMS_TOO_LARGE, f"rms {rms * 1e3:.1f} mm")
+    cx, cy = float(centre[0]), float(centre[1])
+    if math.hypot(cx - ox, cy - oy) - mean_range_m < params.facing_fraction * params.radius_m:
         return FitRejection(RejectReason.NOT_FACING)
-    if last - first >= params.radius_check_points:
-        free_radius = free_radius_mismatch(
-            used,
-            fit,
+    if n_points >= params.radius_check_points:
+        free_radius = free_radius_mismatch_xy(
+            xs[kept_first:kept_stop],
+            ys[kept_first:kept_stop],
+            (cx, cy, params.radius_m),
+            sums,
             points.origin_xy_m,
             scanner,
             params.radius_tolerance_m,
@@ -216,12 +208,12 @@ def fit_cylinder(
         if free_radius is not None:
             return FitRejection(RejectReason.RADIUS_MISMATCH, f"radius {free_radius:.3f} m")
     return CircleFeature(
-        cx_m=fit.cx_m,
-        cy_m=fit.cy_m,
+        cx_m=cx,
+        cy_m=cy,
         radius_m=params.radius_m,
-        covariance=fit.covariance,
-        n_points=fit.n_points,
-        rms_m=fit.rms_m,
-        first_index=first,
-        last_index=last - 1,
+        covariance=covariance,
+        n_points=n_points,
+        rms_m=rms,
+        first_index=first + kept_first,
+        last_index=first + kept_stop - 1,
     )
