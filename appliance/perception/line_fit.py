@@ -30,11 +30,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from appliance.perception.jit import F64, I64, IN_1D, IN_2D, OUT_1D, kernel
+from appliance.perception.line_kernels import irls, residual_figures, rough_line
 from appliance.perception.types import FitRejection, FloatArray, RejectReason, ScannerModel
-
-_IRLS_TOLERANCE = 1e-12
-_RESOLUTION = 1e-10  # a spread below this fraction of the coordinates is rounding
 
 
 @dataclass(frozen=True, eq=False)
@@ -48,13 +45,6 @@ class LineFit:
     max_residual_m: float
     n_points: int
     chi_square: float  # Σ (residual / its σ)²
-
-
-@kernel(F64)
-def wrap_angle(angle_rad: float) -> float:
-    """The angle in (−π, π]."""
-    wrapped = math.atan2(math.sin(angle_rad), math.cos(angle_rad))
-    return math.pi if wrapped <= -math.pi else wrapped
 
 
 def moment_columns(q: FloatArray) -> FloatArray:
@@ -100,31 +90,8 @@ def line_from_sums(sums: FloatArray, shift: FloatArray) -> RoughLine | None:
 def line_from_list(sums: list[float], shift_x: float, shift_y: float) -> RoughLine | None:
     """`line_from_sums` of the sums as floats (1, x, y, x², y², xy) and the shift."""
     total, sx, sy, sxx, syy, sxy = sums
-    found, *line = _rough_line(total, sx, sy, sxx, syy, sxy, shift_x, shift_y)
+    found, *line = rough_line(total, sx, sy, sxx, syy, sxy, shift_x, shift_y)
     return RoughLine(*line) if found else None
-
-
-@kernel(F64, F64, F64, F64, F64, F64, F64, F64)
-def _rough_line(total: float, sx: float, sy: float, sxx: float, syy: float, sxy: float,
-                shift_x: float, shift_y: float
-                ) -> tuple[bool, float, float, float, float, float, float]:  # fmt: skip
-    """(found, then `RoughLine`'s fields) of the moment sums."""
-    if not total > 0.0:
-        return False, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
-    mx, my = sx / total, sy / total
-    cxx, cyy, cxy = sxx - total * mx * mx, syy - total * my * my, sxy - total * mx * my
-    px, py = mx + shift_x, my + shift_y
-    resolution = _RESOLUTION * max(abs(px), abs(py))  # spreads below this are rounding
-    if not (cxx + cyy > total * resolution * resolution and math.isfinite(cxx + cyy + cxy)):
-        return False, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
-    alpha = 0.5 * math.atan2(-2.0 * cxy, cyy - cxx)
-    c, s = math.cos(alpha), math.sin(alpha)
-    r = px * c + py * s
-    if r < 0.0:
-        r, alpha, c, s = -r, alpha + math.pi, -c, -s
-    spread = cxx * s * s - 2.0 * cxy * s * c + cyy * c * c
-    across = cxx * c * c + 2.0 * cxy * s * c + cyy * s * s
-    return True, r, wrap_angle(alpha), spread, -s * px + c * py, total, across
 
 
 def tls_line(xy_m: FloatArray, weights: FloatArray | None = None) -> tuple[float, float] | None:
@@ -138,33 +105,6 @@ def tls_line(xy_m: FloatArray, weights: FloatArray | None = None) -> tuple[float
         w = np.ones(xy_m.shape[0]) if weights is None else weights
         line = line_from_sums(w @ moment_columns(q), shift)
     return None if line is None else (line.r_m, line.alpha_rad)
-
-
-@kernel(IN_2D, F64, F64, F64, OUT_1D)
-def _weights(directions: FloatArray, alpha: float, sigma_m: float, floor_sigma_m: float,
-             out: FloatArray) -> None:  # fmt: skip
-    """Each point's weight, 1 / the variance of its offset along the normal at ``alpha``
-    (`ScannerModel.normal_variance`), into ``out``."""
-    c, s = math.cos(alpha), math.sin(alpha)
-    lowest = (1e-3 * sigma_m) ** 2
-    for k in range(directions.shape[0]):
-        variance = sigma_m * (directions[k, 0] * c + directions[k, 1] * s)
-        variance *= variance
-        variance += floor_sigma_m**2
-        if floor_sigma_m**2 < lowest:
-            variance = max(variance, lowest)
-        out[k] = 1.0 / variance
-
-
-@kernel(IN_1D, IN_2D, OUT_1D)
-def _weighted_sums(weights: FloatArray, moments: FloatArray, out: FloatArray) -> None:
-    """``weights @ moments`` into ``out``, the points added in order."""
-    for j in range(6):
-        out[j] = 0.0
-    for k in range(moments.shape[0]):
-        w = weights[k]
-        for j in range(6):
-            out[j] += w * moments[k, j]
 
 
 def fit_line(
@@ -219,7 +159,7 @@ def fit_line_moments(
         if line is None:
             return FitRejection(RejectReason.DEGENERATE, "no direction in the points")
         return _finish_line_fit(q, *shift_xy_m, line, weights)
-    found, weights, *fields = _irls(
+    found, weights, *fields = irls(
         moments,
         np.ascontiguousarray(directions),
         0.0 if alpha_start_rad is None else alpha_start_rad,
@@ -233,41 +173,13 @@ def fit_line_moments(
     return _finish_line_fit(q, *shift_xy_m, RoughLine(*fields), weights)
 
 
-@kernel(IN_2D, IN_2D, F64, F64, F64, F64, F64, I64)
-def _irls(moments: FloatArray, directions: FloatArray, alpha_start_rad: float, sigma_m: float,
-          floor_sigma_m: float, shift_x: float, shift_y: float, iterations: int
-          ) -> tuple[bool, FloatArray, float, float, float, float, float, float]:  # fmt: skip
-    """The weighted line iterated to its fixed point: (found, the weights it ends with,
-    then `RoughLine`'s fields). Each pass fits the line with the weights of the last
-    pass's normal; it stops when a pass moves the line by no more than rounding."""
-    weights = np.empty(moments.shape[0])
-    sums = np.empty(6)
-    _weights(directions, alpha_start_rad, sigma_m, floor_sigma_m, weights)
-    found = False
-    r = alpha = spread = along = total = across = 0.0
-    for iteration in range(iterations):
-        _weighted_sums(weights, moments, sums)
-        previous_r, previous_alpha = r, alpha
-        found, r, alpha, spread, along, total, across = _rough_line(
-            sums[0], sums[1], sums[2], sums[3], sums[4], sums[5], shift_x, shift_y
-        )
-        if not found:
-            break
-        if iteration > 0:
-            change = max(abs(r - previous_r), abs(wrap_angle(alpha - previous_alpha)))
-            if change <= _IRLS_TOLERANCE * (1.0 + r):
-                break  # the weights this line was fitted with are its own, to rounding
-        _weights(directions, alpha, sigma_m, floor_sigma_m, weights)
-    return found, weights, r, alpha, spread, along, total, across
-
-
 def _finish_line_fit(
     q: FloatArray, shift_x: float, shift_y: float, line: RoughLine, weights: FloatArray
 ) -> LineFit | FitRejection:
     """Covariance (derived in the module docstring) and residuals of a fitted line."""
     if not (line.spread > 0.0 and math.isfinite(line.spread)):
         return FitRejection(RejectReason.DEGENERATE, "no extent along the line")
-    rms, worst, chi_square = _residual_figures(
+    rms, worst, chi_square = residual_figures(
         q, weights, line.r_m, line.alpha_rad, shift_x, shift_y
     )
     var_alpha = 1.0 / line.spread
@@ -279,21 +191,3 @@ def _finish_line_fit(
         return FitRejection(RejectReason.NON_FINITE, "the fit overflowed")
     covariance = np.array([[var_r, cov_r_alpha], [cov_r_alpha, var_alpha]])
     return LineFit(line.r_m, line.alpha_rad, covariance, rms, worst, int(q.shape[0]), chi_square)
-
-
-@kernel(IN_2D, IN_1D, F64, F64, F64, F64)
-def _residual_figures(q: FloatArray, weights: FloatArray, r_m: float, alpha_rad: float,
-                      shift_x: float, shift_y: float) -> tuple[float, float, float]:  # fmt: skip
-    """The residuals' rms, the largest residual and ``Σ w e²``."""
-    c, s = math.cos(alpha_rad), math.sin(alpha_rad)
-    offset = r_m - shift_x * c - shift_y * s
-    squares = 0.0
-    worst = 0.0
-    chi_square = 0.0
-    for k in range(q.shape[0]):
-        residual = q[k, 0] * c + q[k, 1] * s - offset
-        square = residual * residual
-        squares += square
-        worst = max(worst, square)  # a NaN makes the rms NaN: the fit is refused
-        chi_square += weights[k] * square
-    return math.sqrt(squares / q.shape[0]), math.sqrt(worst), chi_square

@@ -29,21 +29,20 @@ view ends there.
 
 from __future__ import annotations
 
-import itertools
 import math
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 import numpy.typing as npt
 
+from appliance.perception import line_kernels
 from appliance.perception.gates import chi_square_quantile
-from appliance.perception.jit import F64, IN_1D, kernel
 from appliance.perception.line_fit import (
     LineFit,
     RoughLine,
     column_sums,
     fit_line_moments,
-    line_from_list,
     moment_columns,
 )
 from appliance.perception.points import ScanPoints
@@ -91,58 +90,12 @@ def split_breakpoints(xy_m: FloatArray, split_distance_m: float) -> list[int]:
     """Iterative end-point fit: sorted indices of the points the chords broke at,
     the first and the last point included."""
     xs, ys = np.ascontiguousarray(xy_m[:, 0]), np.ascontiguousarray(xy_m[:, 1])
-    breaks: list[int] = np.flatnonzero(_split(xs, ys, split_distance_m)).tolist()
+    breaks: list[int] = np.flatnonzero(line_kernels.split_mask(xs, ys, split_distance_m)).tolist()
     return breaks
-
-
-@kernel(IN_1D, IN_1D, F64)
-def _split(xs: FloatArray, ys: FloatArray, split_distance_m: float) -> npt.NDArray[np.bool_]:
-    """`split_breakpoints` as a mask over the points."""
-    n = xs.shape[0]
-    breaks = np.zeros(n, dtype=np.bool_)
-    if n == 0:
-        return breaks
-    breaks[0] = breaks[n - 1] = True
-    pending = [(0, n - 1)]
-    while pending:
-        i, j = pending.pop()
-        if j - i < 2:
-            continue
-        xi, yi = xs[i], ys[i]
-        chord_x, chord_y = xs[j] - xi, ys[j] - yi
-        length = math.hypot(chord_x, chord_y)
-        farthest, k = -1.0, i + 1
-        for m in range(i + 1, j):
-            inner_x, inner_y = xs[m] - xi, ys[m] - yi
-            if length > 0.0:
-                distance = abs(inner_x * chord_y - inner_y * chord_x) / length
-            else:
-                distance = math.hypot(inner_x, inner_y)
-            if math.isnan(distance):  # numpy's argmax takes the first NaN: no split
-                farthest, k = distance, m
-                break
-            if distance > farthest:
-                farthest, k = distance, m
-        if farthest > split_distance_m:
-            breaks[k] = True
-            pending.append((i, k))
-            pending.append((k, j))
-    return breaks
-
-
-def _pieces(breaks: list[int]) -> list[tuple[int, int]]:
-    """Non-overlapping inclusive pieces between breakpoints; a breakpoint (the corner)
-    starts the piece after it."""
-    if len(breaks) == 1:
-        return [(breaks[0], breaks[0])]
-    pieces = [(a, b - 1) for a, b in itertools.pairwise(breaks[:-1])]
-    pieces.append((breaks[-2], breaks[-1]))
-    return [(a, b) for a, b in pieces if b >= a]
 
 
 def _rows(array: FloatArray, indices: IndexArray) -> FloatArray:
-    """``array[indices]``, as a view when the indices are a run (the usual piece): the
-    same rows in the same order, so every sum over them is the same to the last bit."""
+    """``array[indices]``, as a view when the indices are a run (the usual piece)."""
     first, last = int(indices[0]), int(indices[-1])
     rows: FloatArray = (
         array[first : last + 1] if last - first + 1 == indices.shape[0] else array[indices]
@@ -150,42 +103,27 @@ def _rows(array: FloatArray, indices: IndexArray) -> FloatArray:
     return rows
 
 
-_Candidate = tuple[float, tuple[IndexArray, RoughLine]]  # (χ² / gate, merged piece)
-
-
 class _Cluster:
-    """One segment's points with their moment columns: the isotropic line of any subset
-    is then one indexed sum away, and split-and-merge tries many subsets. Most are runs
-    that start where a piece starts (a merge keeps the first piece's start): the running
-    sums of the rows from each start are kept, and are the runs' sums to the last bit
-    (``np.add.reduce`` adds the rows one after the other too)."""
+    """One segment's points, moved to their mean, with their moment columns: the
+    isotropic line of any subset is then one sum of rows away (split-and-merge tries
+    many), and the weighted fit of a piece kept reads its rows."""
 
     def __init__(self, xy_m: FloatArray, scanner: ScannerModel) -> None:
+        self.xy_m = xy_m
         self.shift = column_sums(xy_m) / max(xy_m.shape[0], 1)
         self.shift_xy = (float(self.shift[0]), float(self.shift[1]))
         self.q = xy_m - self.shift
         self.moments = moment_columns(self.q)
         self.weight = 1.0 / (scanner.sigma_m**2 + scanner.floor_sigma_m**2)
-        self._running: dict[int, FloatArray] = {}  # by first row: the running sums
 
-    def line(self, indices: IndexArray) -> RoughLine | None:
-        first, last = int(indices[0]), int(indices[-1])
-        if last - first + 1 != indices.shape[0]:  # not a run
-            sums = column_sums(self.moments[indices]).tolist()
-        else:
-            if (running := self._running.get(first)) is None:
-                running = self._running[first] = np.add.accumulate(self.moments[first:], axis=0)
-            sums = running[last - first].tolist()
-        return line_from_list([self.weight * v for v in sums], *self.shift_xy)
 
-    def farthest(self, indices: IndexArray, line: RoughLine) -> float:
-        """The largest distance of the points from the line, from the extremes of their
-        projections on its normal (a difference of floats is monotonic in each, so this
-        is the largest of the rounded distances, to the last bit)."""
-        c, s = math.cos(line.alpha_rad), math.sin(line.alpha_rad)
-        offset = line.r_m - self.shift_xy[0] * c - self.shift_xy[1] * s
-        along = _rows(self.q, indices) @ np.array([c, s])
-        return max(float(along.max()) - offset, offset - float(along.min()))
+@lru_cache(maxsize=8)
+def _gates(merge_gate_z: float, points: int) -> FloatArray:
+    """The merge's χ² gate by degrees of freedom, 0 to ``points``: a table, so the
+    compiled split-and-merge reads it (the quantile itself is `gates`')."""
+    table = np.array([chi_square_quantile(dof, merge_gate_z) for dof in range(points + 1)])
+    table.flags.writeable = False
+    return table
 
 
 def split_and_merge(
@@ -202,105 +140,34 @@ def split_and_merge(
         cluster = _Cluster(xy_m, scanner)
         if not np.isfinite(cluster.moments).all():
             return [], 0
-        return _split_and_merge(cluster, xy_m, params)
+        return _split_and_merge(cluster, params)
 
 
 def _split_and_merge(
-    cluster: _Cluster, xy_m: FloatArray, params: LineParams
+    cluster: _Cluster, params: LineParams
 ) -> tuple[list[tuple[IndexArray, RoughLine]], int]:
-    pieces: list[tuple[IndexArray, RoughLine]] = []
-    debris = 0
-    for a, b in _pieces(split_breakpoints(xy_m, params.split_distance_m)):
-        indices = np.arange(a, b + 1)
-        line = cluster.line(indices) if indices.shape[0] >= params.min_points else None
-        if line is None:
-            debris += 1
-        else:
-            pieces.append((indices, line))
-    if len(pieces) < 2:
-        return pieces, debris
-
-    def candidate(k: int) -> _Candidate | None:
-        """Pieces k and k+1 merged, if the merged line passes both tests, with its χ²
-        as a fraction of the gate (the smaller, the better the pair)."""
-        union = np.concatenate((pieces[k][0], pieces[k + 1][0]))
-        merged = cluster.line(union)
-        if merged is None:
-            return None
-        gate = chi_square_quantile(union.shape[0] - 2, params.merge_gate_z)
-        if not merged.chi_square <= gate:
-            return None
-        if cluster.farthest(union, merged) > params.split_distance_m:
-            return None
-        return merged.chi_square / gate, (union, merged)
-
-    candidates = [candidate(k) for k in range(len(pieces) - 1)]
-    while True:
-        viable = [(c[0], k, c[1]) for k, c in enumerate(candidates) if c is not None]
-        if not viable:
-            break
-        _, k, merged = min(viable, key=lambda v: (v[0], v[1]))
-        pieces[k : k + 2] = [merged]
-        del candidates[k]  # only the pairs with the new piece change
-        if k < len(candidates):
-            candidates[k] = candidate(k)
-        if k > 0:
-            candidates[k - 1] = candidate(k - 1)
-    for k in range(len(pieces) - 1):
-        pieces[k : k + 2] = _settle_corner(cluster, pieces[k], pieces[k + 1], params)
-    return pieces, debris
-
-
-def _settle_corner(
-    cluster: _Cluster,
-    before: tuple[IndexArray, RoughLine],
-    after: tuple[IndexArray, RoughLine],
-    params: LineParams,
-) -> list[tuple[IndexArray, RoughLine]]:
-    """Move the boundary between two neighbouring lines to where the points say it is.
-
-    The split put the corner on one noisy point, a short piece next to it may have been
-    merged to the wrong side or dropped as debris; any of these bends a fit or cuts a
-    line short. With both lines fitted on their bulk, every point from the first line's
-    start to the second's end is given to the line that explains it, at the single
-    boundary that minimises the summed squared residuals (one cumulative sum), and a
-    point farther than the split distance from its line stays out.
-    """
-    lowest = params.min_points
-    begin, end = int(before[0][0]), int(after[0][-1]) + 1
-    size = end - begin
-    if size < 2 * lowest:
-        return [before, after]
-    # Both lines' distances of every point from the first line's start to the second's end.
-    residuals = np.empty((2, size))
-    offsets = []
-    for row, (_, line) in zip(residuals, (before, after), strict=True):
-        c, s = math.cos(line.alpha_rad), math.sin(line.alpha_rad)
-        np.matmul(cluster.q[begin:end], np.array([c, s]), out=row)
-        offsets.append([line.r_m - cluster.shift_xy[0] * c - cluster.shift_xy[1] * s])
-    residuals -= offsets
-    np.abs(residuals, out=residuals)
-    squares = residuals * residuals
-    # cost[k]: the first k points to the first line, the rest to the second (k >= lowest).
-    head = squares[0].cumsum()
-    tail = squares[1, ::-1].cumsum()[::-1]
-    cost = head[lowest - 1 : size - lowest] + tail[lowest : size - lowest + 1]
-    boundary = lowest + int(cost.argmin())
-    union = np.arange(begin, end)
-    first = union[:boundary][residuals[0, :boundary] <= params.split_distance_m]
-    second = union[boundary:][residuals[1, boundary:] <= params.split_distance_m]
-    if _same(first, before[0]) and _same(second, after[0]):
-        return [before, after]
-    if min(first.shape[0], second.shape[0]) < lowest:
-        return [before, after]
-    first_line, second_line = cluster.line(first), cluster.line(second)
-    if first_line is None or second_line is None:
-        return [before, after]
-    return [(first, first_line), (second, second_line)]
-
-
-def _same(a: IndexArray, b: IndexArray) -> bool:
-    return a.shape == b.shape and bool((a == b).all())
+    """Split, merge and settle the corners (`line_kernels.split_and_merge`; the rules are
+    this module's docstring's, and `line_kernels.settle_corner` says how a corner moves)."""
+    xy = cluster.xy_m
+    if xy.shape[0] == 0:
+        return [], 0
+    flat, offsets, fields, debris = line_kernels.split_and_merge(
+        np.ascontiguousarray(xy[:, 0]),
+        np.ascontiguousarray(xy[:, 1]),
+        cluster.q,
+        cluster.moments,
+        cluster.weight,
+        *cluster.shift_xy,
+        params.split_distance_m,
+        params.min_points,
+        _gates(params.merge_gate_z, max(xy.shape[0], 1024)),
+    )
+    bounds = offsets.tolist()
+    pieces = [
+        (flat[a:b], RoughLine(*row))
+        for a, b, row in zip(bounds[:-1], bounds[1:], fields.tolist(), strict=True)
+    ]
+    return pieces, int(debris)
 
 
 def _line_range_m(fit: LineFit, origin: tuple[float, float], direction: FloatArray) -> float:
@@ -355,7 +222,7 @@ def extract_lines(
         cluster = _Cluster(xy, scanner)
         if not np.isfinite(cluster.moments).all():
             return []
-        pieces, debris = _split_and_merge(cluster, xy, params)
+        pieces, debris = _split_and_merge(cluster, params)
     results: list[LineFeature | FitRejection] = [
         FitRejection(RejectReason.TOO_FEW_POINTS, "split debris") for _ in range(debris)
     ]

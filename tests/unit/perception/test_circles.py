@@ -265,7 +265,9 @@ def test_the_covariances_are_the_sandwich_written_out(seed: int) -> None:
 def test_one_points_variance_is_the_scanner_models(
     sigma_m: float, floor_sigma_m: float, cos_incidence: float
 ) -> None:
-    """The compiled per-point noise is `ScannerModel.normal_variance` of that point."""
+    """The compiled per-point noise is `ScannerModel.normal_variance` of that point (to
+    the last bits a square by multiplication and one by ``pow`` may round apart in)."""
     scanner = ScannerModel(sigma_m=sigma_m, floor_sigma_m=floor_sigma_m)
     expected = float(scanner.normal_variance(np.array([cos_incidence]))[0])
-    assert normal_variance(sigma_m, floor_sigma_m, cos_incidence) == expected
+    got = normal_variance(sigma_m, floor_sigma_m, cos_incidence)
+    assert got == pytest.approx(expected, rel=1e-15, abs=0.0)

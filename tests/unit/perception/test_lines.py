@@ -3,6 +3,7 @@ split-and-merge on corners and outliers, the Hessian form, and occluded ends."""
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import numpy as np
@@ -266,21 +267,25 @@ def test_any_cluster_repeated_gives_a_line_or_a_rejection(
         assert isinstance(result, FitRejection) or np.isfinite(result.covariance).all()
 
 
-def test_the_running_sums_are_the_sums_to_the_last_bit() -> None:
-    """Split-and-merge reads the sums of runs of points off running sums kept per start,
-    and any other subset's off `column_sums`: both add the rows in order, as
-    ``np.add.reduce`` does, so every rough line is the one the plain sums give."""
+def test_every_pieces_line_is_the_one_its_plain_sums_give() -> None:
+    """Split-and-merge adds each piece's moment rows in order, as ``np.add.reduce``
+    does: every rough line it returns, for a run of points or for the points a settled
+    corner kept, is the one the plain sums of its points give, to the last bit."""
     rng = np.random.default_rng(8)
-    for _ in range(30):
-        n = int(rng.integers(2, 300))
-        xy = rng.normal(0.0, rng.uniform(0.01, 5.0), (n, 2)) + rng.uniform(-20.0, 20.0, 2)
+    checked = 0
+    for _ in range(40):
+        corners = rng.uniform(-3.0, 3.0, (int(rng.integers(2, 5)), 2)) + rng.uniform(-20, 20, 2)
+        xy = np.concatenate(
+            [np.linspace(a, b, int(rng.integers(8, 80))) for a, b in itertools.pairwise(corners)]
+        )
+        xy += rng.normal(0.0, float(rng.choice([0.002, 0.012, 0.03])), xy.shape)
+        if rng.random() < 0.5:
+            xy[rng.integers(0, len(xy))] += rng.normal(0.0, 0.3, 2)  # an outlier
         cluster = _Cluster(xy, SCANNER)
         assert column_sums(xy).tobytes() == np.add.reduce(xy, axis=0).tobytes()
-        for _ in range(10):
-            a, b = sorted(int(v) for v in rng.integers(0, n, 2))
-            run = np.arange(a, b + 1)
-            subset = np.unique(rng.integers(a, b + 1, 5))
-            for indices in (run, subset):
-                sums = np.add.reduce(cluster.moments[indices], axis=0).tolist()
-                expected = line_from_list([cluster.weight * v for v in sums], *cluster.shift_xy)
-                assert cluster.line(indices) == expected
+        pieces, _ = split_and_merge(xy, PARAMS, SCANNER)
+        for indices, line in pieces:
+            sums = np.add.reduce(cluster.moments[indices], axis=0).tolist()
+            assert line == line_from_list([cluster.weight * v for v in sums], *cluster.shift_xy)
+            checked += 1
+    assert checked > 60
