@@ -13,6 +13,7 @@ their least-squares search in ``circle_search``) with ``cylinders`` (when an arc
 landmark), and ``features`` (the whole scan, with regions of interest). ``types`` holds
 what comes out (`ScanFeatures`, `LineFeature`, `CircleFeature`, `FitRejection`) and what
 the fits assume of the scanner (`ScannerModel`); ``gates`` the χ² quantile the tests
-share. ``jit`` compiles the few loops numpy cannot make cheap on a few dozen points (the
-circle search, the weighted line's iterations, the chord split), at import.
+share. ``jit`` compiles, at import, the loops numpy cannot make cheap on a few dozen points:
+``circle_search`` (the circle fits' search, covariance and trimmed arc) and
+``line_kernels`` (the weighted line's iterations, split-and-merge and its corners).
 """
