@@ -17,8 +17,9 @@ away) is not needed. The second covers the range noise of both points. Then:
   and clusters whose points are on average farther apart than a surface gives
   (dispersed: vegetation, a grazing wall) are dropped and counted.
 
-Vectorised: one pass of array arithmetic over all beams; only the (few) clusters are
-looped over by the caller.
+One compiled pass over the beams (`_clusters`, a `jit` kernel: as array arithmetic it
+was two dozen numpy calls per scan); only the (few) clusters are looped over by the
+caller.
 """
 
 from __future__ import annotations
@@ -28,9 +29,13 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
+import numpy.typing as npt
 
+from appliance.perception.jit import F64, I64, IN_1D, IN_BOOL, kernel
 from appliance.perception.points import AngleCache
 from appliance.perception.types import BoolArray, FloatArray, RejectReason, ScannerModel
+
+IndexArray = npt.NDArray[np.int64]
 
 
 @dataclass(frozen=True)
@@ -97,47 +102,76 @@ def segment_scan(
     it), ``angles_rad`` the beam angles (only their differences matter), ``valid`` the
     beams to use: beams outside it count as no echo.
     """
-    count = int(valid.shape[0])
-    if count == 0:
+    if valid.shape[0] == 0:
         return Segmentation((), {})
-    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
-        step = xy_m[1:] - xy_m[:-1]
-        squared = step * step
-        gaps = np.sqrt(squared[:, 0] + squared[:, 1])
-        if count > 1 and not np.maximum.reduce(gaps) < math.inf:  # beyond 1e154 m: hypot
-            gaps = np.hypot(step[:, 0], step[:, 1])
-        step_sine, remaining_sine = _STEP_SINES.get(angles_rad, params.lambda_rad)
-        limits = ranges_m[:-1] * step_sine
-        limits /= remaining_sine
-        limits += 3.0 * scanner.sigma_m
-        joined = valid[:-1] & valid[1:] & (gaps <= limits)
-        # A cluster starts at every valid beam not joined to its predecessor.
-        apart = ~joined
-        starts_flag = valid.copy()
-        starts_flag[1:] &= apart
-        ends_flag = valid.copy()
-        ends_flag[:-1] &= apart
-        starts = starts_flag.nonzero()[0]
-        stops = ends_flag.nonzero()[0] + 1
-        sizes = stops - starts
-        # Mean spacing per cluster from a running sum of the joined gaps.
-        travelled = np.empty(count)
-        travelled[0] = 0.0
-        np.where(joined, gaps, 0.0).cumsum(out=travelled[1:])
-        mean_spacing = (travelled[stops - 1] - travelled[starts]) / np.maximum(sizes - 1, 1)
-    too_few = sizes < params.min_points
-    dispersed = ~too_few & ~(mean_spacing <= params.max_mean_spacing_m)
-    keep = ~(too_few | dispersed)
+    step_sine, remaining_sine = _STEP_SINES.get(angles_rad, params.lambda_rad)
+    starts, stops, too_few, dispersed = _clusters(
+        np.ascontiguousarray(xy_m[:, 0]),
+        np.ascontiguousarray(xy_m[:, 1]),
+        ranges_m,
+        valid,
+        step_sine,
+        remaining_sine,
+        3.0 * scanner.sigma_m,
+        params.min_points,
+        params.max_mean_spacing_m,
+    )
     rejections = {
         f"segment.{reason}": n
-        for reason, n in (
-            (RejectReason.ISOLATED, int(np.count_nonzero(too_few))),
-            (RejectReason.DISPERSED, int(np.count_nonzero(dispersed))),
-        )
+        for reason, n in ((RejectReason.ISOLATED, too_few), (RejectReason.DISPERSED, dispersed))
         if n
     }
-    kept = zip(starts[keep].tolist(), stops[keep].tolist(), strict=True)
+    kept = zip(starts.tolist(), stops.tolist(), strict=True)
     return Segmentation(tuple(kept), rejections)
+
+
+@kernel(IN_1D, IN_1D, IN_1D, IN_BOOL, IN_1D, IN_1D, F64, I64, F64)
+def _clusters(xs: FloatArray, ys: FloatArray, ranges_m: FloatArray, valid: BoolArray,
+              step_sine: FloatArray, remaining_sine: FloatArray, noise_m: float,
+              min_points: int, max_mean_spacing_m: float
+              ) -> tuple[IndexArray, IndexArray, int, int]:  # fmt: skip
+    """The kept clusters' starts and stops, and how many were too few points and how
+    many dispersed. Two valid neighbours are joined when their gap is within
+    ``ranges_m · step_sine / remaining_sine + noise_m`` (`breakpoint_distance_m`)."""
+    count = valid.shape[0]
+    gaps = np.empty(max(count - 1, 0))
+    finite = True
+    for i in range(count - 1):
+        dx, dy = xs[i + 1] - xs[i], ys[i + 1] - ys[i]
+        gaps[i] = math.sqrt(dx * dx + dy * dy)
+        finite = finite and gaps[i] < math.inf
+    if not finite:  # beyond 1e154 m the squares overflow: hypot does not
+        for i in range(count - 1):
+            gaps[i] = math.hypot(xs[i + 1] - xs[i], ys[i + 1] - ys[i])
+    starts = np.empty(count, dtype=np.int64)
+    stops = np.empty(count, dtype=np.int64)
+    kept = too_few = dispersed = 0
+    start = -1
+    travelled = 0.0  # the joined gaps since the cluster's start
+    for i in range(count):
+        if not valid[i]:
+            continue
+        if start < 0:
+            start, travelled = i, 0.0
+        joined = False
+        if i + 1 < count and valid[i + 1]:
+            limit = ranges_m[i] * step_sine[i]
+            limit /= remaining_sine[i]
+            limit += noise_m
+            joined = gaps[i] <= limit
+        if joined:
+            travelled += gaps[i]
+            continue
+        size = i + 1 - start
+        if size < min_points:
+            too_few += 1
+        elif not travelled / max(size - 1, 1) <= max_mean_spacing_m:
+            dispersed += 1
+        else:
+            starts[kept], stops[kept] = start, i + 1
+            kept += 1
+        start = -1
+    return starts[:kept], stops[:kept], too_few, dispersed
 
 
 def _step_sines(angles: FloatArray, lambda_rad: float) -> tuple[FloatArray, FloatArray]:
