@@ -24,6 +24,7 @@ import numpy as np
 import numpy.typing as npt
 
 from appliance.perception.cylinders import CircleParams, fit_cylinder
+from appliance.perception.jit import IN_1D, IN_2D, kernel
 from appliance.perception.lines import LineParams, extract_lines
 from appliance.perception.points import scan_points
 from appliance.perception.segments import SegmentParams, segment_scan
@@ -52,18 +53,6 @@ class DiscRoi:
         if not self.radius_m > 0.0:
             raise ValueError(f"radius_m must be > 0, got {self.radius_m}")
 
-    def contains(self, xy_m: FloatArray) -> BoolArray:
-        return self.contains_xy(xy_m[:, 0], xy_m[:, 1])
-
-    def contains_xy(self, x_m: FloatArray, y_m: FloatArray) -> BoolArray:
-        """`contains` of the points' coordinates as two arrays."""
-        dx, dy = x_m - self.cx_m, y_m - self.cy_m
-        dx *= dx
-        dy *= dy
-        dx += dy
-        inside: BoolArray = dx <= self.radius_m * self.radius_m
-        return inside
-
 
 @dataclass(frozen=True)
 class LineRoi:
@@ -79,31 +68,6 @@ class LineRoi:
     def __post_init__(self) -> None:
         if not self.half_width_m > 0.0:
             raise ValueError(f"half_width_m must be > 0, got {self.half_width_m}")
-
-    def contains(self, xy_m: FloatArray) -> BoolArray:
-        return self.contains_xy(xy_m[:, 0], xy_m[:, 1])
-
-    def contains_xy(self, x_m: FloatArray, y_m: FloatArray) -> BoolArray:
-        """`contains` of the points' coordinates as two arrays."""
-        ex, ey = self.x1_m - self.x0_m, self.y1_m - self.y0_m
-        length_sq = ex * ex + ey * ey
-        px, py = x_m - self.x0_m, y_m - self.y0_m
-        if length_sq > 0.0:
-            along = px * ex
-            along += py * ey
-            along /= length_sq
-            # Clipped to the segment (a sign of zero lost here is squared away below).
-            np.maximum(along, 0.0, out=along)
-            np.minimum(along, 1.0, out=along)
-        else:
-            along = np.zeros(len(px))
-        px -= along * ex
-        py -= along * ey
-        px *= px
-        py *= py
-        px += py
-        inside: BoolArray = px <= self.half_width_m * self.half_width_m
-        return inside
 
 
 Roi = DiscRoi | LineRoi
@@ -124,14 +88,47 @@ _DEFAULTS = FeatureParams()
 
 def roi_mask(xy_m: FloatArray, rois: Sequence[Roi]) -> BoolArray:
     """Beams whose point lies in at least one region."""
-    if not rois:
-        return np.zeros(xy_m.shape[0], dtype=np.bool_)
-    x_m, y_m = np.ascontiguousarray(xy_m[:, 0]), np.ascontiguousarray(xy_m[:, 1])
-    with np.errstate(over="ignore", invalid="ignore"):  # a point at 1e300 m is in none
-        mask = rois[0].contains_xy(x_m, y_m)
-        for roi in rois[1:]:
-            mask |= roi.contains_xy(x_m, y_m)
-    return mask
+    discs = np.array([(r.cx_m, r.cy_m, r.radius_m) for r in rois if isinstance(r, DiscRoi)])
+    capsules = np.array(
+        [(r.x0_m, r.y0_m, r.x1_m, r.y1_m, r.half_width_m) for r in rois if isinstance(r, LineRoi)]
+    )
+    return _in_regions(
+        np.ascontiguousarray(xy_m[:, 0]),
+        np.ascontiguousarray(xy_m[:, 1]),
+        discs.reshape(-1, 3),
+        capsules.reshape(-1, 5),
+    )
+
+
+@kernel(IN_1D, IN_1D, IN_2D, IN_2D)
+def _in_regions(x_m: FloatArray, y_m: FloatArray, discs: FloatArray, capsules: FloatArray
+                ) -> BoolArray:  # fmt: skip
+    """Whether each point is in a disc (cx, cy, radius) or within a capsule's half width
+    of its segment (x0, y0, x1, y1, half width). A point at 1e300 m is in none."""
+    inside = np.zeros(x_m.shape[0], dtype=np.bool_)
+    for i in range(x_m.shape[0]):
+        for k in range(discs.shape[0]):
+            dx, dy = x_m[i] - discs[k, 0], y_m[i] - discs[k, 1]
+            if dx * dx + dy * dy <= discs[k, 2] * discs[k, 2]:
+                inside[i] = True
+                break
+        if inside[i]:
+            continue
+        for k in range(capsules.shape[0]):
+            x0, y0, x1, y1 = capsules[k, 0], capsules[k, 1], capsules[k, 2], capsules[k, 3]
+            half_width = capsules[k, 4]
+            ex, ey = x1 - x0, y1 - y0
+            length_sq = ex * ex + ey * ey
+            px, py = x_m[i] - x0, y_m[i] - y0
+            along = 0.0
+            if length_sq > 0.0:  # the foot of the point on the segment, clipped to it
+                along = min(max((px * ex + py * ey) / length_sq, 0.0), 1.0)
+            px -= along * ex
+            py -= along * ey
+            if px * px + py * py <= half_width * half_width:
+                inside[i] = True
+                break
+    return inside
 
 
 def extract_features(

@@ -15,6 +15,7 @@ NaN that would poison a sum.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Generic, TypeVar
@@ -22,6 +23,7 @@ from typing import Generic, TypeVar
 import numpy as np
 import numpy.typing as npt
 
+from appliance.perception.jit import F64, IN_1D, IN_2D, IN_BOOL, kernel
 from appliance.perception.types import BoolArray, FloatArray
 from drivers.geometry import Pose2D
 
@@ -81,22 +83,33 @@ def scan_points(
             f" and {angles.shape}"
         )
     directions, finite_angles = _BEAMS.get(angles, float(frame.yaw_rad))
-    with np.errstate(invalid="ignore"):
-        valid = np.isfinite(ranges)
-        valid &= finite_angles
-        valid &= ranges > 0.0
-        if range_offset_m == 0.0:  # the ranges as they are (r - 0 is r): no echo drops
-            corrected = np.where(valid, ranges, 0.0)
-        else:
-            corrected = np.where(valid, ranges - range_offset_m, 0.0)
-            valid &= corrected > 0.0  # also drops a non-finite offset's nan
-            corrected = np.where(valid, corrected, 0.0)
-    # Column by column: numpy's loops over (N, 2) arrays run two elements at a time.
-    xy = np.empty((ranges.shape[0], 2), dtype=np.float64)
-    for column, origin_m in ((0, frame.x_m), (1, frame.y_m)):
-        np.multiply(corrected, directions[:, column], out=xy[:, column])
-        xy[:, column] += origin_m
+    xy, corrected, valid = _points(
+        ranges, directions, finite_angles, range_offset_m, float(frame.x_m), float(frame.y_m)
+    )
     return ScanPoints(xy, corrected, directions, valid, (float(frame.x_m), float(frame.y_m)))
+
+
+@kernel(IN_1D, IN_2D, IN_BOOL, F64, F64, F64)
+def _points(ranges: FloatArray, directions: FloatArray, finite_angles: BoolArray,
+            range_offset_m: float, origin_x_m: float, origin_y_m: float
+            ) -> tuple[FloatArray, FloatArray, BoolArray]:  # fmt: skip
+    """(points, ranges less the offset, echo) per beam: an echo is a finite range above
+    0 on a finite angle, still above 0 less the offset (a non-finite offset drops
+    every echo); a beam without one has range 0 and its point at the origin."""
+    count = ranges.shape[0]
+    xy = np.empty((count, 2))
+    corrected = np.zeros(count)
+    valid = np.zeros(count, dtype=np.bool_)
+    for i in range(count):
+        r = ranges[i]
+        if math.isfinite(r) and finite_angles[i] and r > 0.0:
+            if range_offset_m != 0.0:  # r − 0 is r: without an offset no echo drops
+                r -= range_offset_m
+            if r > 0.0:
+                corrected[i], valid[i] = r, True
+        xy[i, 0] = corrected[i] * directions[i, 0] + origin_x_m
+        xy[i, 1] = corrected[i] * directions[i, 1] + origin_y_m
+    return xy, corrected, valid
 
 
 _T = TypeVar("_T")
