@@ -36,10 +36,13 @@ from appliance.perception import circle_search as search
 from appliance.perception.circle_search import coordinates, trimmed_arc
 from appliance.perception.circles import REASONS, free_radius_mismatch_xy
 from appliance.perception.gates import chi_square_quantile
+from appliance.perception.jit import F64, I64, IN_1D, IN_2D, IN_BOOL, kernel
 from appliance.perception.points import ScanPoints
 from appliance.perception.types import (
+    BoolArray,
     CircleFeature,
     FitRejection,
+    FloatArray,
     RejectReason,
     ScannerModel,
 )
@@ -89,62 +92,58 @@ class CircleParams:
             raise ValueError(f"max_iterations must be >= 1, got {self.max_iterations}")
 
 
-def _isolated(points: ScanPoints, start: int, stop: int, margin_m: float) -> bool:
-    """The beams just outside [start, stop) see nothing, or see it clearly farther."""
-    valid, ranges = points.valid, points.ranges_m
-    for beyond, edge in ((start - 1, start), (stop, stop - 1)):
-        if not 0 <= beyond < points.count:
-            return False  # the field of view's edge: what is beside the arc is unknown
-        if valid[beyond] and ranges[beyond] <= ranges[edge] + margin_m:
-            return False
-    return True
+_FITS, _TOO_WIDE, _TOO_NARROW, _NOT_ISOLATED = 0, 1, 2, 3
 
 
-def _angle_between(a: list[float], b: list[float]) -> float:
-    """The unsigned angle between two unit vectors."""
-    return abs(math.atan2(a[0] * b[1] - a[1] * b[0], a[0] * b[0] + a[1] * b[1]))
+@kernel(IN_2D, I64, I64)
+def _angle_between(directions: FloatArray, i: int, j: int) -> float:
+    """The unsigned angle between two beams' unit vectors."""
+    ax, ay, bx, by = directions[i, 0], directions[i, 1], directions[j, 0], directions[j, 1]
+    return abs(math.atan2(ax * by - ay * bx, ax * bx + ay * by))
 
 
-def _width_problem(
-    points: ScanPoints,
-    start: int,
-    stop: int,
-    params: CircleParams,
-    scanner: ScannerModel,
-    beam_step_rad: float,
-) -> FitRejection | None:
-    """Whether the cluster subtends the angle the cylinder would, from where it is.
+@kernel(IN_2D, IN_1D, IN_BOOL, I64, I64, F64, F64, F64, F64, F64, F64, F64)
+def _arc_checks(directions: FloatArray, ranges_m: FloatArray, valid: BoolArray, start: int,
+                stop: int, radius_m: float, footprint_exit_m: float,
+                footprint_divergence_rad: float, widening: float, widening_tolerance: float,
+                width_tolerance_m: float, isolation_margin_m: float
+                ) -> tuple[int, float, float, float]:  # fmt: skip
+    """Whether the cluster [start, stop) could be the cylinder before any fit: (outcome,
+    the beam step, the arc's span and the centre's range, both in the width's detail).
 
-    Compared as angles, not lengths: a cylinder of radius R whose centre is d away shows
-    the scanner an arc between its two tangents, ``2 asin(R / d)`` wide, and only the
-    beams' directions are certain (a mixed echo at an end is off in range, never in
+    **Width.** Whether the cluster subtends the angle the cylinder would, from where it
+    is. Compared as angles, not lengths: a cylinder of radius R whose centre is d away
+    shows the scanner an arc between its two tangents, ``2 asin(R / d)`` wide, and only
+    the beams' directions are certain (a mixed echo at an end is off in range, never in
     angle). A chord at the arc's mean range would be short of the diameter by up to a
     third at 1 m, where the tangent points lie well behind the nearest point. The
-    footprint widens the arc by about ``footprint_widening`` of its own angular size; a
-    scanner without one (the ideal model) is inside the tolerance.
+    footprint widens the arc by about ``widening`` of its own angular size; a scanner
+    without one (the ideal model) is inside the tolerance.
+
+    **Isolation.** The beams just outside the cluster see nothing, or see it clearly
+    farther; at the field of view's edge what is beside the arc is unknown.
     """
-    centre_m = float(np.minimum.reduce(points.ranges_m[start:stop])) + params.radius_m
-    directions = points.directions
-    span = _angle_between(directions[start].tolist(), directions[stop - 1].tolist())
-    expected = 2.0 * math.asin(min(1.0, params.radius_m / centre_m))
-    footprint_rad = (
-        scanner.footprint_exit_m + scanner.footprint_divergence_rad * centre_m
-    ) / centre_m
-    widened = expected + params.footprint_widening * footprint_rad
-    allowed = (
-        beam_step_rad
-        + params.footprint_widening_tolerance * footprint_rad
-        + params.width_tolerance_m / centre_m
-    )
+    beam_step = _angle_between(directions, start, start + 1)
+    centre_m = radius_m + min(ranges_m[start:stop])
+    span = _angle_between(directions, start, stop - 1)
+    expected = 2.0 * math.asin(min(1.0, radius_m / centre_m))
+    footprint_rad = (footprint_exit_m + footprint_divergence_rad * centre_m) / centre_m
+    widened = expected + widening * footprint_rad
+    allowed = beam_step + widening_tolerance * footprint_rad + width_tolerance_m / centre_m
     if span > widened + allowed:
-        return FitRejection(RejectReason.TOO_WIDE, _across(centre_m, span))
+        return _TOO_WIDE, beam_step, span, centre_m
     # The first and the last beam on the arc each lie up to a step inside its tangents.
     # A footprint wider than a step makes up for that (a beam whose footprint touches
     # the cylinder reports it); thin rays do not, and their arc can look two steps short.
-    unseen = max(0.0, beam_step_rad - 0.5 * footprint_rad)
+    unseen = max(0.0, beam_step - 0.5 * footprint_rad)
     if span < widened - allowed - unseen:
-        return FitRejection(RejectReason.TOO_NARROW, _across(centre_m, span))
-    return None
+        return _TOO_NARROW, beam_step, span, centre_m
+    for beyond, edge in ((start - 1, start), (stop, stop - 1)):
+        if not 0 <= beyond < ranges_m.shape[0]:
+            return _NOT_ISOLATED, beam_step, span, centre_m
+        if valid[beyond] and ranges_m[beyond] <= ranges_m[edge] + isolation_margin_m:
+            return _NOT_ISOLATED, beam_step, span, centre_m
+    return _FITS, beam_step, span, centre_m
 
 
 def _across(centre_m: float, span_rad: float) -> str:
@@ -161,13 +160,17 @@ def fit_cylinder(
     start, stop = segment
     if stop - start < max(params.min_points, 2):
         return FitRejection(RejectReason.TOO_FEW_POINTS, f"{stop - start} points")
-    beam_step = _angle_between(
-        points.directions[start].tolist(), points.directions[start + 1].tolist()
-    )
-    problem = _width_problem(points, start, stop, params, scanner, beam_step)
-    if problem is not None:
-        return problem
-    if not _isolated(points, start, stop, params.isolation_margin_m):
+    outcome, beam_step, span, centre_m = _arc_checks(
+        points.directions, points.ranges_m, points.valid, start, stop, params.radius_m,
+        scanner.footprint_exit_m, scanner.footprint_divergence_rad, params.footprint_widening,
+        params.footprint_widening_tolerance, params.width_tolerance_m,
+        params.isolation_margin_m,
+    )  # fmt: skip
+    if outcome == _TOO_WIDE:
+        return FitRejection(RejectReason.TOO_WIDE, _across(centre_m, span))
+    if outcome == _TOO_NARROW:
+        return FitRejection(RejectReason.TOO_NARROW, _across(centre_m, span))
+    if outcome == _NOT_ISOLATED:
         return FitRejection(RejectReason.NOT_ISOLATED)
     first, last = start, stop
     if params.trim_footprint_edges:

@@ -378,3 +378,37 @@ def split_and_merge(xs: FloatArray, ys: FloatArray, q: FloatArray, moments: Floa
         fields[k, 0], fields[k, 1], fields[k, 2] = r_m, alpha_rad, spread
         fields[k, 3], fields[k, 4], fields[k, 5] = along_m, total, across
     return flat, offsets, fields, debris
+
+
+@kernel(IN_1D, IN_1D, F64, F64, I64, IN_1D)
+def cluster_lines(xs: FloatArray, ys: FloatArray, weight: float, split_distance_m: float,
+                  min_points: int, gates: FloatArray
+                  ) -> tuple[bool, float, float, FloatArray, FloatArray, IndexArray, IndexArray,
+                             FloatArray, int]:  # fmt: skip
+    """`split_and_merge` of a cluster's points as they come: (every moment finite, the
+    shift the points were moved by (their mean), their offsets ``q`` from it and
+    `moment_columns` of those (the weighted fits of the pieces kept read their rows),
+    then `split_and_merge`'s pieces, lines and debris)."""
+    n = xs.shape[0]
+    shift_x = shift_y = 0.0
+    for k in range(n):
+        shift_x += xs[k]
+        shift_y += ys[k]
+    shift_x /= max(n, 1)
+    shift_y /= max(n, 1)
+    q = np.empty((n, 2))
+    moments = np.empty((n, 6))
+    finite = True
+    for k in range(n):
+        x, y = xs[k] - shift_x, ys[k] - shift_y
+        q[k, 0], q[k, 1] = x, y
+        moments[k, 0], moments[k, 1], moments[k, 2] = 1.0, x, y
+        moments[k, 3], moments[k, 4], moments[k, 5] = x * x, y * y, x * y
+        finite = finite and math.isfinite(x * x + y * y + x * y)
+    if not finite or n == 0:
+        nothing = np.empty(0, dtype=np.int64)
+        return False, shift_x, shift_y, q, moments, nothing, nothing, np.empty((0, 6)), 0
+    flat, offsets, fields, debris = split_and_merge(
+        xs, ys, q, moments, weight, shift_x, shift_y, split_distance_m, min_points, gates
+    )
+    return True, shift_x, shift_y, q, moments, flat, offsets, fields, debris

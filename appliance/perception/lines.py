@@ -32,6 +32,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from functools import lru_cache
+from typing import NamedTuple
 
 import numpy as np
 import numpy.typing as npt
@@ -41,9 +42,7 @@ from appliance.perception.gates import chi_square_quantile
 from appliance.perception.line_fit import (
     LineFit,
     RoughLine,
-    column_sums,
     fit_line_moments,
-    moment_columns,
 )
 from appliance.perception.points import ScanPoints
 from appliance.perception.types import (
@@ -103,20 +102,6 @@ def _rows(array: FloatArray, indices: IndexArray) -> FloatArray:
     return rows
 
 
-class _Cluster:
-    """One segment's points, moved to their mean, with their moment columns: the
-    isotropic line of any subset is then one sum of rows away (split-and-merge tries
-    many), and the weighted fit of a piece kept reads its rows."""
-
-    def __init__(self, xy_m: FloatArray, scanner: ScannerModel) -> None:
-        self.xy_m = xy_m
-        self.shift = column_sums(xy_m) / max(xy_m.shape[0], 1)
-        self.shift_xy = (float(self.shift[0]), float(self.shift[1]))
-        self.q = xy_m - self.shift
-        self.moments = moment_columns(self.q)
-        self.weight = 1.0 / (scanner.sigma_m**2 + scanner.floor_sigma_m**2)
-
-
 @lru_cache(maxsize=8)
 def _gates(merge_gate_z: float, points: int) -> FloatArray:
     """The merge's χ² gate by degrees of freedom, 0 to ``points``: a table, so the
@@ -124,6 +109,41 @@ def _gates(merge_gate_z: float, points: int) -> FloatArray:
     table = np.array([chi_square_quantile(dof, merge_gate_z) for dof in range(points + 1)])
     table.flags.writeable = False
     return table
+
+
+class _Cluster(NamedTuple):
+    """One segment's points moved to their mean, their moment columns, and its pieces:
+    (local point indices, isotropic rough line) in point order, and the debris."""
+
+    shift_xy: tuple[float, float]
+    q: FloatArray
+    moments: FloatArray
+    pieces: list[tuple[IndexArray, RoughLine]]
+    debris: int
+
+
+def _cluster(xy_m: FloatArray, params: LineParams, scanner: ScannerModel) -> _Cluster | None:
+    """Split, merge and settle the corners of one cluster (`line_kernels.cluster_lines`;
+    the rules are this module's docstring's, and `line_kernels.settle_corner` says how a
+    corner moves); None if its coordinates overflow."""
+    finite, shift_x, shift_y, q, moments, flat, offsets, fields, debris = (
+        line_kernels.cluster_lines(
+            np.ascontiguousarray(xy_m[:, 0]),
+            np.ascontiguousarray(xy_m[:, 1]),
+            1.0 / (scanner.sigma_m**2 + scanner.floor_sigma_m**2),
+            params.split_distance_m,
+            params.min_points,
+            _gates(params.merge_gate_z, max(xy_m.shape[0], 1024)),
+        )
+    )
+    if not finite:
+        return None
+    bounds = offsets.tolist()
+    pieces = [
+        (flat[a:b], RoughLine(*row))
+        for a, b, row in zip(bounds[:-1], bounds[1:], fields.tolist(), strict=True)
+    ]
+    return _Cluster((shift_x, shift_y), q, moments, pieces, int(debris))
 
 
 def split_and_merge(
@@ -136,38 +156,8 @@ def split_and_merge(
     need the right order of magnitude, and most pieces tried here are never kept, so
     the weighted fit is left to the caller, for the lines it keeps.
     """
-    with np.errstate(all="ignore"):
-        cluster = _Cluster(xy_m, scanner)
-        if not np.isfinite(cluster.moments).all():
-            return [], 0
-        return _split_and_merge(cluster, params)
-
-
-def _split_and_merge(
-    cluster: _Cluster, params: LineParams
-) -> tuple[list[tuple[IndexArray, RoughLine]], int]:
-    """Split, merge and settle the corners (`line_kernels.split_and_merge`; the rules are
-    this module's docstring's, and `line_kernels.settle_corner` says how a corner moves)."""
-    xy = cluster.xy_m
-    if xy.shape[0] == 0:
-        return [], 0
-    flat, offsets, fields, debris = line_kernels.split_and_merge(
-        np.ascontiguousarray(xy[:, 0]),
-        np.ascontiguousarray(xy[:, 1]),
-        cluster.q,
-        cluster.moments,
-        cluster.weight,
-        *cluster.shift_xy,
-        params.split_distance_m,
-        params.min_points,
-        _gates(params.merge_gate_z, max(xy.shape[0], 1024)),
-    )
-    bounds = offsets.tolist()
-    pieces = [
-        (flat[a:b], RoughLine(*row))
-        for a, b, row in zip(bounds[:-1], bounds[1:], fields.tolist(), strict=True)
-    ]
-    return pieces, int(debris)
+    cluster = _cluster(xy_m, params, scanner)
+    return ([], 0) if cluster is None else (cluster.pieces, cluster.debris)
 
 
 def _line_range_m(fit: LineFit, origin: tuple[float, float], direction: FloatArray) -> float:
@@ -218,16 +208,14 @@ def extract_lines(
     directions = points.directions[start:stop]
     if stop - start < params.min_points:
         return [FitRejection(RejectReason.TOO_FEW_POINTS, f"{stop - start} points")]
-    with np.errstate(all="ignore"):
-        cluster = _Cluster(xy, scanner)
-        if not np.isfinite(cluster.moments).all():
-            return []
-        pieces, debris = _split_and_merge(cluster, params)
+    cluster = _cluster(xy, params, scanner)
+    if cluster is None:
+        return []
     results: list[LineFeature | FitRejection] = [
-        FitRejection(RejectReason.TOO_FEW_POINTS, "split debris") for _ in range(debris)
+        FitRejection(RejectReason.TOO_FEW_POINTS, "split debris") for _ in range(cluster.debris)
     ]
     shortest_chord_m = params.min_length_m - params.split_distance_m
-    for indices, rough in pieces:
+    for indices, rough in cluster.pieces:
         first, last = start + int(indices[0]), start + int(indices[-1])
         (x0, y0), (x1, y1) = points.xy_m[first].tolist(), points.xy_m[last].tolist()
         if math.hypot(x1 - x0, y1 - y0) < shortest_chord_m:

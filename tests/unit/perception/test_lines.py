@@ -11,8 +11,15 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from appliance.perception.line_fit import LineFit, column_sums, fit_line, line_from_list, tls_line
-from appliance.perception.lines import LineParams, _Cluster, extract_lines, split_and_merge
+from appliance.perception.line_fit import (
+    LineFit,
+    column_sums,
+    fit_line,
+    line_from_list,
+    moment_columns,
+    tls_line,
+)
+from appliance.perception.lines import LineParams, extract_lines, split_and_merge
 from appliance.perception.points import scan_points
 from appliance.perception.types import FitRejection, LineFeature, ScannerModel
 from drivers.geometry import Pose2D
@@ -281,11 +288,13 @@ def test_every_pieces_line_is_the_one_its_plain_sums_give() -> None:
         xy += rng.normal(0.0, float(rng.choice([0.002, 0.012, 0.03])), xy.shape)
         if rng.random() < 0.5:
             xy[rng.integers(0, len(xy))] += rng.normal(0.0, 0.3, 2)  # an outlier
-        cluster = _Cluster(xy, SCANNER)
         assert column_sums(xy).tobytes() == np.add.reduce(xy, axis=0).tobytes()
+        shift = np.add.reduce(xy, axis=0) / len(xy)
+        moments = moment_columns(xy - shift)
+        weight = 1.0 / (SCANNER.sigma_m**2 + SCANNER.floor_sigma_m**2)
         pieces, _ = split_and_merge(xy, PARAMS, SCANNER)
         for indices, line in pieces:
-            sums = np.add.reduce(cluster.moments[indices], axis=0).tolist()
-            assert line == line_from_list([cluster.weight * v for v in sums], *cluster.shift_xy)
+            sums = np.add.reduce(moments[indices], axis=0).tolist()
+            assert line == line_from_list([weight * v for v in sums], *shift.tolist())
             checked += 1
     assert checked > 60
