@@ -67,12 +67,6 @@ class CircleFit:
     _origin_xy_m: tuple[float, float] = field(repr=False)
     _sums: FloatArray = field(repr=False)
 
-    @property
-    def mean_range_m(self) -> float:
-        """The mean distance of the fitted points from the scanner."""
-        ox, oy = self._origin_xy_m
-        return float(np.hypot(self._xs - ox, self._ys - oy).mean())
-
 
 # The kernels' outcomes as the reasons a fit reports.
 REASONS = {
@@ -149,25 +143,10 @@ def fit_circle_known_radius(
     (a refit after dropping a point starts from the previous centre), then the middle
     point pushed back along its beam, then Taubin's centre. Never raises.
     """
-    if xy_m.shape[0] < 2:
-        return FitRejection(RejectReason.TOO_FEW_POINTS, f"{xy_m.shape[0]} point(s)")
-    xs, ys = coordinates(xy_m)
-    return fit_known_radius_xy(xs, ys, radius_m, origin_xy_m, scanner, max_iterations, start)
-
-
-def fit_known_radius_xy(
-    xs: FloatArray,
-    ys: FloatArray,
-    radius_m: float,
-    origin_xy_m: tuple[float, float],
-    scanner: ScannerModel,
-    max_iterations: int = 50,
-    start: tuple[float, float] | None = None,
-) -> CircleFit | FitRejection:
-    """`fit_circle_known_radius` of the points as two coordinate arrays."""
-    n = int(xs.shape[0])
+    n = int(xy_m.shape[0])
     if n < 2:
         return FitRejection(RejectReason.TOO_FEW_POINTS, f"{n} point(s)")
+    xs, ys = coordinates(xy_m)
     sx, sy = (0.0, 0.0) if start is None else start
     outcome, centre, sums = known_radius_fit(
         xs, ys, *origin_xy_m, radius_m, sx, sy, start is not None, max_iterations
