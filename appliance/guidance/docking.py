@@ -155,8 +155,10 @@ def lateral_sigma_m(centre: Pose2D, covariance: FloatArray | None, forward_m: fl
     (the longitudinal σ only moves the stop by as much)."""
     if covariance is None:
         return math.inf
-    jac = np.array([0.0, 1.0, forward_m * math.cos(centre.yaw_rad)])
-    return math.sqrt(max(float(jac @ np.asarray(covariance) @ jac), 0.0))
+    # jᵀ C j with j = (0, 1, k), in floats (numpy's products of 3-vectors cost more).
+    k = forward_m * math.cos(centre.yaw_rad)
+    (_, c11, c12), (_, c21, c22) = np.asarray(covariance)[1:3].tolist()
+    return math.sqrt(max((c11 + k * c21) + (c12 + k * c22) * k, 0.0))
 
 
 class DockingController:
