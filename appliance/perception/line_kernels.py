@@ -36,8 +36,8 @@ def wrap_angle(angle_rad: float) -> float:
 
 @kernel(F64, F64, F64, F64, F64, F64, F64, F64)
 def rough_line(total: float, sx: float, sy: float, sxx: float, syy: float, sxy: float,
-                shift_x: float, shift_y: float
-                ) -> tuple[bool, float, float, float, float, float, float]:  # fmt: skip
+               shift_x: float, shift_y: float
+              ) -> tuple[bool, float, float, float, float, float, float]:  # fmt: skip
     """(found, then `RoughLine`'s fields) of the moment sums."""
     if not total > 0.0:
         return False, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
@@ -59,7 +59,7 @@ def rough_line(total: float, sx: float, sy: float, sxx: float, syy: float, sxy: 
 
 @kernel(IN_2D, F64, F64, F64, OUT_1D)
 def weights_into(directions: FloatArray, alpha: float, sigma_m: float, floor_sigma_m: float,
-             out: FloatArray) -> None:  # fmt: skip
+                 out: FloatArray) -> None:  # fmt: skip
     """Each point's weight, 1 / the variance of its offset along the normal at ``alpha``
     (`ScannerModel.normal_variance`), into ``out``."""
     c, s = math.cos(alpha), math.sin(alpha)
@@ -86,8 +86,8 @@ def weighted_sums(weights: FloatArray, moments: FloatArray, out: FloatArray) -> 
 
 @kernel(IN_2D, IN_2D, F64, F64, F64, F64, F64, I64)
 def irls(moments: FloatArray, directions: FloatArray, alpha_start_rad: float, sigma_m: float,
-          floor_sigma_m: float, shift_x: float, shift_y: float, iterations: int
-          ) -> tuple[bool, FloatArray, float, float, float, float, float, float]:  # fmt: skip
+         floor_sigma_m: float, shift_x: float, shift_y: float, iterations: int
+        ) -> tuple[bool, FloatArray, float, float, float, float, float, float]:  # fmt: skip
     """The weighted line iterated to its fixed point: (found, the weights it ends with,
     then `RoughLine`'s fields). Each pass fits the line with the weights of the last
     pass's normal; it stops when a pass moves the line by no more than rounding."""
@@ -114,7 +114,7 @@ def irls(moments: FloatArray, directions: FloatArray, alpha_start_rad: float, si
 
 @kernel(IN_2D, IN_1D, F64, F64, F64, F64)
 def residual_figures(q: FloatArray, weights: FloatArray, r_m: float, alpha_rad: float,
-                      shift_x: float, shift_y: float) -> tuple[float, float, float]:  # fmt: skip
+                     shift_x: float, shift_y: float) -> tuple[float, float, float]:  # fmt: skip
     """The residuals' rms, the largest residual and ``Σ w e²``."""
     c, s = math.cos(alpha_rad), math.sin(alpha_rad)
     offset = r_m - shift_x * c - shift_y * s
@@ -198,7 +198,7 @@ def farthest(q: FloatArray, indices: IndexArray, r_m: float, alpha_rad: float, s
 def merge_candidate(q: FloatArray, moments: FloatArray, weight: float, shift_x: float,
                     shift_y: float, split_distance_m: float, gates: FloatArray,
                     before: IndexArray, after: IndexArray
-                    ) -> tuple[bool, float, IndexArray, Rough]:  # fmt: skip
+                   ) -> tuple[bool, float, IndexArray, Rough]:  # fmt: skip
     """Two neighbouring pieces merged, if the merged line passes both tests (its χ²
     within ``gates[n − 2]``, every point within the split distance): (passes, χ² as a
     fraction of the gate, the merged indices, its line)."""
@@ -229,7 +229,7 @@ def settle_corner(q: FloatArray, moments: FloatArray, weight: float, shift_x: fl
                   shift_y: float, split_distance_m: float, min_points: int,
                   before: IndexArray, before_r_m: float, before_alpha_rad: float,
                   after: IndexArray, after_r_m: float, after_alpha_rad: float
-                  ) -> tuple[bool, IndexArray, Rough, IndexArray, Rough]:  # fmt: skip
+                 ) -> tuple[bool, IndexArray, Rough, IndexArray, Rough]:  # fmt: skip
     """Move the boundary between two neighbouring lines to where the points say it is:
     (moved, the first piece and its line, the second's).
 
@@ -298,7 +298,7 @@ def settle_corner(q: FloatArray, moments: FloatArray, weight: float, shift_x: fl
 def split_and_merge(xs: FloatArray, ys: FloatArray, q: FloatArray, moments: FloatArray,
                     weight: float, shift_x: float, shift_y: float, split_distance_m: float,
                     min_points: int, gates: FloatArray
-                    ) -> tuple[IndexArray, IndexArray, FloatArray, int]:  # fmt: skip
+                   ) -> tuple[IndexArray, IndexArray, FloatArray, int]:  # fmt: skip
     """`lines.split_and_merge` of one cluster: its points ``xs``, ``ys``, their offsets
     ``q`` from (``shift_x``, ``shift_y``) and `moment_columns` of those, each point
     weighted ``weight``; ``gates[m]`` the merge's χ² gate for m degrees of freedom.
@@ -383,8 +383,8 @@ def split_and_merge(xs: FloatArray, ys: FloatArray, q: FloatArray, moments: Floa
 @kernel(IN_1D, IN_1D, F64, F64, I64, IN_1D)
 def cluster_lines(xs: FloatArray, ys: FloatArray, weight: float, split_distance_m: float,
                   min_points: int, gates: FloatArray
-                  ) -> tuple[bool, float, float, FloatArray, FloatArray, IndexArray, IndexArray,
-                             FloatArray, int]:  # fmt: skip
+                 ) -> tuple[bool, float, float, FloatArray, FloatArray, IndexArray, IndexArray,
+                            FloatArray, int]:  # fmt: skip
     """`split_and_merge` of a cluster's points as they come: (every moment finite, the
     shift the points were moved by (their mean), their offsets ``q`` from it and
     `moment_columns` of those (the weighted fits of the pieces kept read their rows),
