@@ -501,16 +501,14 @@ def trimmed_arc(xs: FloatArray, ys: FloatArray, origin_x_m: float, origin_y_m: f
         )  # fmt: skip
         if outcome != OK:
             return outcome, first, stop, x, np.zeros((2, 2)), sums, 0.0, 0.0
-        centre, determined = covariance(
+        determined, centre, fitted, rms = fit_figures(
             part_x, part_y, origin_x_m, origin_y_m, x, radius_m, sums, sigma_m, floor_sigma_m
         )
         if not determined:
             return DEGENERATE, first, stop, x, centre, sums, 0.0, 0.0
-        rms = math.sqrt(sums[2, 2] / (stop - first))
         if not (math.isfinite(rms) and math.isfinite(x[0]) and math.isfinite(x[1])):
             return NON_FINITE, first, stop, x, centre, sums, rms, 0.0
-        end_first = abs(math.hypot(xs[first] - x[0], ys[first] - x[1]) - radius_m)
-        end_last = abs(math.hypot(xs[stop - 1] - x[0], ys[stop - 1] - x[1]) - radius_m)
+        end_first, end_last = abs(fitted[0]), abs(fitted[fitted.shape[0] - 1])
         if stop - first <= min_points or max(end_first, end_last) <= edge_limit_m:
             break
         if end_first >= end_last:
