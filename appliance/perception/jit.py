@@ -42,6 +42,7 @@ IN_2D = types.Array(types.float64, 2, "A", readonly=True)
 OUT_1D = types.Array(types.float64, 1, "A")
 OUT_2D = types.Array(types.float64, 2, "A")
 IN_INDEX = types.Array(types.int64, 1, "A", readonly=True)
+OUT_INDEX = types.Array(types.int64, 1, "A")
 IN_BOOL = types.Array(types.boolean, 1, "A", readonly=True)
 
 _OPTIONS: dict[str, Any] = {"nogil": True, "error_model": "numpy", "fastmath": False}

@@ -3,9 +3,10 @@
 ``site`` holds the geometry (segments, circles, walking people) as frozen data,
 ``builders`` turns a few parameters into a launcher (Qian et al.), a pallet area
 (Kinouchi et al.) or a yard, ``site_file`` loads a site from TOML, ``raycast`` finds
-the nearest hit of every beam at once, ``scanner_errors`` draws what one LMS111 gets
-wrong (noise, systematic error, beam footprint, remission limit, mount error) and
-``scanner_model`` renders one LMS111 scan with the device's angle convention and errors.
+the nearest hit of every beam at once (a compiled loop, ``cast_kernels``),
+``scanner_errors`` draws what one LMS111 gets wrong (noise, systematic error, beam
+footprint, remission limit, mount error) and ``scanner_model`` renders one LMS111 scan
+with the device's angle convention and errors.
 Everything is pure: time and randomness are arguments, so the twins, the tests and
 replays all get the same scans.
 """

@@ -1,11 +1,11 @@
-"""Nearest-hit ray casting of many beams against line segments and circles, in numpy.
+"""Nearest-hit ray casting of many beams against line segments and circles.
 
 Two simulated LMS111 at 50 Hz render 100 scans of 1081 beams a second, next to the rest
-of the simulation in the same process, so a scan must cost well under a millisecond or
-two. The work is therefore one (beams x segments) and one (beams x circles) array
-computation with no Python loop over beams; in a site of many shapes, those out of range
-are dropped first, because a 40 m yard wall is usually farther than the scanner's 20 m
-(with a handful, casting against them all is cheaper than finding them).
+of the simulation in the same process, so a scan must cost well under a millisecond. The
+cast itself is one compiled pass over beams x shapes (`cast_kernels`); in a site of many
+shapes, those out of range are dropped first, because a 40 m yard wall is usually
+farther than the scanner's 20 m (with a handful, casting against them all is cheaper
+than finding them).
 
 Conventions, chosen to match what the scanner reports rather than what geometry allows:
 
@@ -21,17 +21,18 @@ Conventions, chosen to match what the scanner reports rather than what geometry 
 
 from __future__ import annotations
 
-import threading
+import functools
 from typing import NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
 
-NO_HIT = -1
+from appliance.sim.cast_kernels import NO_HIT as NO_HIT
+from appliance.sim.cast_kernels import nearest_hits_into
+
 # Shapes are culled by distance only above this many of a kind: for fewer, casting against
 # the far ones costs less than the dozen array operations that find them.
 _CULL_ABOVE = 16
-_PARALLEL_EPS = 1e-9  # |d x e| below which a beam counts as parallel (1e-9 rad for 1 m)
 
 
 class RayHits(NamedTuple):
@@ -119,204 +120,40 @@ def nearest_hits_along(
     """`nearest_hits` of beams given as (beams, 2) unit ``directions`` (`beam_directions`),
     so that casts of one scan against several shape sets compute them once. ``segs`` and
     ``circs`` are (N, 4) and (M, 3) float64 rows (either may have none), and the origin
-    is outside every circle (`inside_any_circle`): a blinded scanner is the caller's."""
+    is outside every circle (`inside_any_circle`): a blinded scanner is the caller's.
+
+    Each beam's hit is computed on its own (`cast_kernels.nearest_hits_into`), so it is
+    the same whatever else is cast with it: a scan's static shapes and its walkers cast
+    apart and joined by `nearer_of` give one cast of both, to the last bit."""
+    n_segs, n_circs = segs.shape[0], circs.shape[0]
+    if n_segs > _CULL_ABOVE or n_circs > _CULL_ABOVE:
+        seg_ids, circ_ids = np.arange(n_segs), np.arange(n_circs)
+        if n_segs > _CULL_ABOVE:
+            distance = point_segment_distance_m(origin_x_m, origin_y_m, segs)
+            seg_ids = np.flatnonzero(distance <= max_range_m)
+            segs = segs[seg_ids]
+        if n_circs > _CULL_ABOVE:
+            gap = np.hypot(circs[:, 0] - origin_x_m, circs[:, 1] - origin_y_m) - circs[:, 2]
+            circ_ids = np.flatnonzero(gap <= max_range_m)
+            circs = circs[circ_ids]
+        numbers = np.concatenate([seg_ids, circ_ids + n_segs])
+    else:
+        numbers = _shape_numbers(n_segs + n_circs)
     beams = directions.shape[0]
     ranges = np.empty(beams)
-    ranges.fill(np.inf)
     index = np.empty(beams, dtype=np.int64)
-    index.fill(NO_HIT)
-    if beams == 0:
-        return RayHits(np.zeros(0), index)
-
-    if segs.shape[0] > _CULL_ABOVE:
-        keep = np.flatnonzero(point_segment_distance_m(origin_x_m, origin_y_m, segs) <= max_range_m)
-        if keep.size:
-            _nearest_segment_hits(
-                origin_x_m, origin_y_m, directions, segs[keep], keep, ranges, index
-            )
-    elif segs.shape[0]:
-        every = _SCRATCH.shape_numbers(segs.shape[0])
-        _nearest_segment_hits(origin_x_m, origin_y_m, directions, segs, every, ranges, index)
-
-    if circs.shape[0] > _CULL_ABOVE:
-        centre_distance = np.hypot(circs[:, 0] - origin_x_m, circs[:, 1] - origin_y_m)
-        keep = np.flatnonzero(centre_distance - circs[:, 2] <= max_range_m)
-        if keep.size:
-            ids = keep + segs.shape[0]
-            _nearest_circle_hits(
-                origin_x_m, origin_y_m, directions, circs[keep], ids, ranges, index
-            )
-    elif circs.shape[0]:
-        ids = _SCRATCH.shape_numbers(circs.shape[0]) + segs.shape[0]
-        _nearest_circle_hits(origin_x_m, origin_y_m, directions, circs, ids, ranges, index)
-
-    missed = ~(ranges <= max_range_m) | (ranges <= 0.0)
-    ranges[missed] = 0.0
-    index[missed] = NO_HIT
+    nearest_hits_into(
+        origin_x_m, origin_y_m, directions, segs, circs, numbers, max_range_m, ranges, index
+    )
     return RayHits(ranges, index)
 
 
-class _Scratch(threading.local):
-    """Reusable (beams x shapes) work arrays, one set per thread.
-
-    Not an optimisation of the arithmetic but of the memory: a fresh 0.4 MB temporary
-    is an mmap and ~100 page faults, and on the small VMs this runs on (measured on a
-    2-core Firecracker guest) the faults cost three times the arithmetic: 1.1 ms
-    against 0.3 ms for 1081 beams x 50 segments. Results never alias these buffers.
-    """
-
-    def __init__(self) -> None:
-        self.floats: dict[str, NDArray[np.float64]] = {}
-        self.flags: dict[str, NDArray[np.bool_]] = {}
-        self.starts: dict[int, NDArray[np.intp]] = {}
-        self.shapes: dict[int, NDArray[np.intp]] = {}
-
-    def float_array(self, key: str, rows: int, cols: int) -> NDArray[np.float64]:
-        buffer = self.floats.get(key)
-        if buffer is None or buffer.size < rows * cols:
-            buffer = self.floats[key] = np.empty(rows * cols, dtype=np.float64)
-        return buffer[: rows * cols].reshape(rows, cols)
-
-    def row_starts(self, rows: int, cols: int) -> NDArray[np.intp]:
-        """Where each row of a C-ordered (rows, cols) array starts in its flat form
-        (``np.arange(rows) * cols``), kept (read-only) per column count."""
-        starts = self.starts.get(cols)
-        if starts is None or starts.size < rows:
-            starts = self.starts[cols] = np.arange(max(rows, 2048)) * cols
-            starts.flags.writeable = False
-        return starts[:rows]
-
-    def shape_numbers(self, count: int) -> NDArray[np.intp]:
-        """``np.arange(count)`` for a small count, kept (read-only)."""
-        numbers = self.shapes.get(count)
-        if numbers is None:
-            numbers = self.shapes[count] = np.arange(count)
-            numbers.flags.writeable = False
-        return numbers
-
-    def flag_array(self, key: str, rows: int, cols: int) -> NDArray[np.bool_]:
-        buffer = self.flags.get(key)
-        if buffer is None or buffer.size < rows * cols:
-            buffer = self.flags[key] = np.empty(rows * cols, dtype=np.bool_)
-        return buffer[: rows * cols].reshape(rows, cols)
-
-
-_SCRATCH = _Scratch()
-
-
-def _rows(first: NDArray[np.float64], second: NDArray[np.float64]) -> NDArray[np.float64]:
-    """``np.stack([first, second])`` without its Python-level overhead (a (2, n) array)."""
-    rows = np.empty((2, first.shape[0]))
-    rows[0] = first
-    rows[1] = second
-    return rows
-
-
-def _take_nearest(
-    t: NDArray[np.float64],
-    invalid: NDArray[np.bool_],
-    penalty: NDArray[np.float64],
-    shape_ids: NDArray[np.intp],
-    ranges: NDArray[np.float64],
-    index: NDArray[np.int64],
-) -> None:
-    """Per beam, the smallest valid ``t``; update ``ranges``/``index`` where it is nearer.
-
-    Invalid entries become +inf without a boolean-indexed write (slow): invalid * inf
-    is inf there and nan (0 * inf) elsewhere, and fmax ignores the nan.
-    """
-    np.multiply(invalid, np.inf, out=penalty)
-    np.fmax(t, penalty, out=t)
-    if t.shape[1] == 1:  # one shape (a walker): nothing to choose between
-        only_t = t[:, 0]
-        closer = only_t < ranges
-        ranges[closer] = only_t[closer]
-        index[closer] = shape_ids[0]
-        return
-    best = np.argmin(t, axis=1)
-    best_t = t.ravel().take(best + _SCRATCH.row_starts(*t.shape))  # t[rows, best]
-    closer = best_t < ranges
-    ranges[closer] = best_t[closer]
-    index[closer] = shape_ids[best[closer]]
-
-
-def _nearest_segment_hits(
-    ox: float,
-    oy: float,
-    directions: NDArray[np.float64],
-    segs: NDArray[np.float64],
-    shape_ids: NDArray[np.intp],
-    ranges: NDArray[np.float64],
-    index: NDArray[np.int64],
-) -> None:
-    """Update ``ranges``/``index`` in place with the nearest segment hit of each beam.
-
-    Solving origin + t*d = p0 + s*e gives t = (w x e) / (d x e), s = (w x d) / (d x e)
-    with w = p0 - origin. ``w x e`` does not depend on the beam, and both (beams x
-    segments) cross products are one small matrix product each.
-    """
-    beams, count = directions.shape[0], segs.shape[0]
-    wx = segs[:, 0] - ox
-    wy = segs[:, 1] - oy
-    ex = segs[:, 2] - segs[:, 0]
-    ey = segs[:, 3] - segs[:, 1]
-    w_cross_e = wx * ey - wy * ex
-    denom = _SCRATCH.float_array("denom", beams, count)
-    s = _SCRATCH.float_array("s", beams, count)
-    t = _SCRATCH.float_array("t", beams, count)
-    ok = _SCRATCH.flag_array("ok", beams, count)
-    check = _SCRATCH.flag_array("check", beams, count)
-    np.matmul(directions, _rows(ey, np.negative(ex)), out=denom)  # d x e
-    np.matmul(directions, _rows(np.negative(wy), wx), out=s)  # w x d
-    np.abs(denom, out=t)
-    np.greater(t, _PARALLEL_EPS, out=ok)  # not parallel (nor a zero-length segment)
-    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-        np.reciprocal(denom, out=denom)
-        np.multiply(s, denom, out=s)
-        np.multiply(denom, w_cross_e, out=t)
-        s -= 0.5
-        np.abs(s, out=s)
-        np.less_equal(s, 0.5, out=check)  # 0 <= s <= 1: within the segment
-        ok &= check
-        np.greater_equal(t, 0.0, out=check)  # not behind the origin
-        ok &= check
-        np.logical_not(ok, out=ok)
-        _take_nearest(t, ok, denom, shape_ids, ranges, index)
-
-
-def _nearest_circle_hits(
-    ox: float,
-    oy: float,
-    directions: NDArray[np.float64],
-    circs: NDArray[np.float64],
-    shape_ids: NDArray[np.intp],
-    ranges: NDArray[np.float64],
-    index: NDArray[np.int64],
-) -> None:
-    """Update ``ranges``/``index`` in place with the nearest circle entry of each beam.
-
-    |m + t*d|^2 = r^2 with m = origin - centre and |d| = 1 gives t = -b - sqrt(b^2 - c),
-    b = m.d, c = |m|^2 - r^2 > 0 (the origin is outside, checked by the caller), so the
-    nearer root is the entry point and is valid when it is not behind the origin. A
-    miss has b^2 < c, a nan root, and nan fails the ``t >= 0`` test.
-    """
-    beams, count = directions.shape[0], circs.shape[0]
-    mx = ox - circs[:, 0]
-    my = oy - circs[:, 1]
-    c = mx * mx + my * my - circs[:, 2] * circs[:, 2]
-    b = _SCRATCH.float_array("b", beams, count)
-    t = _SCRATCH.float_array("root", beams, count)
-    invalid = _SCRATCH.flag_array("miss", beams, count)
-    np.matmul(directions, _rows(mx, my), out=b)
-    np.multiply(b, b, out=t)
-    t -= c
-    with np.errstate(invalid="ignore"):
-        np.sqrt(t, out=t)
-        t += b
-        np.negative(t, out=t)
-        np.greater_equal(t, 0.0, out=invalid)
-        np.logical_not(invalid, out=invalid)
-        _take_nearest(t, invalid, b, shape_ids, ranges, index)
+@functools.lru_cache(maxsize=64)
+def _shape_numbers(count: int) -> NDArray[np.int64]:
+    """``np.arange(count)``, kept (read-only): a site has the same few shapes every scan."""
+    numbers = np.arange(count, dtype=np.int64)
+    numbers.flags.writeable = False
+    return numbers
 
 
 def inside_any_circle(x_m: float, y_m: float, circles: NDArray[np.float64] | None) -> bool:

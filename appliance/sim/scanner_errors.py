@@ -42,6 +42,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
+from appliance.sim.cast_kernels import first_strong_echo_into
 from drivers.geometry import Pose2D
 
 LMS111_NOISE_SIGMA_M = 0.012  # the data sheet's statistical error, taken as 1 sigma
@@ -55,7 +56,6 @@ NO_MOUNT_ERROR = Pose2D(0.0, 0.0, 0.0)
 
 _ERROR_STREAM = 0x5C4E  # keeps these draws apart from other streams of the same seed
 _NOISE_STREAM = 0x4E01
-_NO_RETURN_M = 1e9  # stands in for a sub-ray's missing return while sorting and grouping
 
 
 @dataclass(frozen=True)
@@ -255,34 +255,9 @@ def first_strong_echo(
     its pulse: they arrive as one echo, whose energy is their sum and whose range is
     their energy-weighted mean. A larger gap starts the next echo. The first echo with
     at least ``min_energy`` (more than 0 if ``min_energy`` is 0) is the measurement; a
-    beam without one gets range 0 and energy 0.
+    beam without one gets range 0 and energy 0 (`cast_kernels.first_strong_echo_into`).
     """
-    beams, returns = ranges_m.shape
-    if beams == 0:
-        return np.zeros(0), np.zeros(0)
-    size = beams * returns
-    hit = ranges_m > 0.0
-    far = np.where(hit, ranges_m, _NO_RETURN_M)  # sorts last, and far from any return
-    row_starts = np.arange(0, size, returns)  # offsets of each row in the flat arrays
-    flat_order = far.argsort(axis=1)
-    flat_order += row_starts[:, None]
-    flat_order = flat_order.ravel()
-    sorted_m = far.ravel().take(flat_order)
-    sorted_energy = np.where(hit, energy, 0.0).ravel().take(flat_order)
-    starts = np.empty(size, dtype=np.bool_)
-    np.greater(sorted_m[1:] - sorted_m[:-1], pulse_merge_m, out=starts[1:])  # np.diff, cheaper
-    starts[row_starts] = True
-    # One bin per echo over the whole array: row r's echoes are r * returns + 0, 1, ...
-    echo = np.add.accumulate(starts, dtype=np.intp)
-    shift = row_starts - echo.take(row_starts)
-    echo += shift.repeat(returns)
-    echo_energy_ = np.bincount(echo, sorted_energy, size)
-    moment = np.bincount(echo, sorted_energy * sorted_m, size)
-    strong = echo_energy_ >= min_energy if min_energy > 0.0 else echo_energy_ > 0.0
-    first = strong.reshape(beams, returns).argmax(axis=1)
-    first += row_starts  # each row's first strong echo, in the flat arrays
-    found = strong.take(first)
-    found_energy = np.where(found, echo_energy_.take(first), 0.0)
-    found_m = moment.take(first) / np.where(found, found_energy, 1.0)
-    found_m[~found] = 0.0
+    beams = ranges_m.shape[0]
+    found_m, found_energy = np.empty(beams), np.empty(beams)
+    first_strong_echo_into(ranges_m, energy, pulse_merge_m, min_energy, found_m, found_energy)
     return found_m, found_energy

@@ -4,7 +4,7 @@ A beam's central ray stands for the whole beam except where its footprint stradd
 surfaces (near an edge) or curves away (on a post): only those beams, a tenth of a scan,
 are cast again as a fan of sub-rays across the footprint (``footprint_beams``), and the
 receiver's view of their returns is taken (``footprint_echo``). The fan is cast like the
-central rays, on the same shape terms (`raycast_scan`).
+central rays.
 
 Every function here gives bit for bit what the straightforward array code gives (the
 figures of a recorded run must not move when the code gets faster): sums keep their order
@@ -19,7 +19,6 @@ import numpy as np
 from numpy.typing import NDArray
 
 from appliance.sim.raycast import RayHits, beam_directions
-from appliance.sim.raycast_scan import ShapeTerms, nearest_hits_seen
 from appliance.sim.scanner_errors import (
     BeamFootprint,
     RemissionLimit,
@@ -39,7 +38,7 @@ def echoes(
     remission: NDArray[np.float64],
     errors: ScannerErrors,
     n_segments: int,
-    terms: Callable[[], ShapeTerms],
+    cast: Callable[[NDArray[np.float64]], RayHits],
     table: NDArray[np.float64],
     angles_rad: NDArray[np.float64],
     step_rad: float,
@@ -49,9 +48,9 @@ def echoes(
     central rays', the weak ones dropped, and the footprint's mix near edges.
 
     ``remission`` is what each central ray hit (``table`` indexed by shape number, the
-    last entry 0 for none; segments' numbers below ``n_segments``); ``terms`` gives the
-    scan's shapes seen from the scanner, asked for only if some beam is cast again (none
-    is if the scanner is blind); ``angles_rad`` are the beams' in the world.
+    last entry 0 for none; segments' numbers below ``n_segments``); ``cast`` casts the
+    scan's shapes along (beams, 2) directions, called only if some beam is cast again
+    (none is if the scanner is blind); ``angles_rad`` are the beams' in the world.
     """
     ranges, cast_remission = hits.ranges_m, remission
     limit, footprint = errors.remission_limit, errors.footprint
@@ -75,7 +74,7 @@ def echoes(
         hits.ranges_m.take(beams),
         cast_remission.take(beams),
         angles_rad.take(beams),
-        terms(),
+        cast,
         table,
         footprint,
         max_range_m,
@@ -123,7 +122,7 @@ def _cast_footprints(
     central_m: NDArray[np.float64],
     central_remission: NDArray[np.float64],
     angles_rad: NDArray[np.float64],
-    terms: ShapeTerms,
+    cast: Callable[[NDArray[np.float64]], RayHits],
     table: NDArray[np.float64],
     footprint: BeamFootprint,
     max_range_m: float,
@@ -136,7 +135,7 @@ def _cast_footprints(
     side = footprint.side_offsets
     half = footprint.half_angle_rad(np.where(central_m > 0.0, central_m, max_range_m))
     fan = angles_rad[:, None] + np.multiply.outer(half, side)
-    sub = nearest_hits_seen(terms, beam_directions(fan.ravel()), max_range_m)
+    sub = cast(beam_directions(fan.ravel()))
     beams, middle = central_m.size, side.size // 2
     full = np.empty((2, beams, side.size + 1))  # ranges, remissions
     full[0, :, middle] = central_m

@@ -15,8 +15,7 @@ beam straddling an edge, the remission the device needs at each range, the mount
 The central ray of every beam is cast as an ideal scanner would; only beams near an edge
 (where the central rays' hit shape jumps between neighbours) or on a post are cast again
 as a fan of sub-rays across their footprint (``scanner_footprint``), so a scan costs about
-twice the thin-ray one rather than seven times. Both casts share the shapes' terms and
-take few array operations (``raycast_scan``), with `raycast`'s results. A
+twice the thin-ray one rather than seven times. Both casts are `raycast`'s. A
 beam with no echo returns exactly 0, as the device does, and never gets noise. Time and
 the random generator are arguments, so a test (or a replay) gets the same scan for the
 same inputs.
@@ -31,8 +30,14 @@ from collections.abc import Callable
 import numpy as np
 from numpy.typing import NDArray
 
-from appliance.sim.raycast import NO_HIT, RayHits, beam_directions, inside_any_circle
-from appliance.sim.raycast_scan import ShapeTerms, nearest_hits_seen, shape_terms, with_walkers
+from appliance.sim.raycast import (
+    NO_HIT,
+    RayHits,
+    beam_directions,
+    inside_any_circle,
+    nearer_of,
+    nearest_hits_along,
+)
 from appliance.sim.scanner_errors import TYPICAL_LMS111, ScannerErrors
 from appliance.sim.scanner_footprint import (
     JUNCTION_STEP_M,
@@ -138,10 +143,14 @@ __all__ = [
 ]
 
 
+_EVERY = slice(None)
+_NO_SEGMENTS = np.empty((0, 4))
+_NO_SEGMENTS.flags.writeable = False
+
+
 class _Scan:
-    """One scan's geometry, each part made on first use: a scanner at rest, whose static
-    hits are cached, needs the beams' directions and the shapes' terms only for a walker
-    or a footprint."""
+    """One scan's geometry; the beams' directions are made on first use: a scanner at
+    rest, whose static hits are cached, needs them only for a walker or a footprint."""
 
     def __init__(
         self, pose: Pose2D, shapes: ShapeArrays, angles_rad: NDArray[np.float64], max_range_m: float
@@ -149,19 +158,24 @@ class _Scan:
         self.pose, self.shapes, self.angles_rad = pose, shapes, angles_rad
         self.max_range_m = max_range_m
         self._directions: NDArray[np.float64] | None = None
-        self._terms: ShapeTerms | None = None
-
-    def terms(self) -> ShapeTerms:
-        """The shapes seen from the scanner, which must be outside every circle."""
-        if self._terms is None:
-            pose, shapes = self.pose, self.shapes
-            self._terms = shape_terms(pose.x_m, pose.y_m, shapes.segments, shapes.circles)
-        return self._terms
 
     def directions(self) -> NDArray[np.float64]:
         if self._directions is None:
             self._directions = beam_directions(self.angles_rad)
         return self._directions
+
+    def cast(
+        self, directions: NDArray[np.float64], segments: bool = True, circles: slice = _EVERY
+    ) -> RayHits:
+        """The nearest hits along ``directions`` of the segments (or none) and ``circles``
+        (a run of them, numbered from 0 after the segments cast); the scanner must be
+        outside every circle."""
+        shapes = self.shapes
+        segs = shapes.segments if segments else _NO_SEGMENTS
+        pose = self.pose
+        return nearest_hits_along(
+            pose.x_m, pose.y_m, directions, segs, shapes.circles[circles], self.max_range_m
+        )
 
     def blind(self) -> RayHits:
         """No echo at all: the scanner is inside a circle."""
@@ -171,9 +185,11 @@ class _Scan:
 
 def _cast_with_cache(cache: RayCache, site: Site, scan: _Scan, key: tuple[float, ...]) -> RayHits:
     """The scan's nearest hits, with the static shapes' from ``cache`` when it has them
-    for ``key``; the walkers are cast along the same beams and the nearer hit is taken."""
+    for ``key``; the walkers are cast along the same beams and the nearer hit is taken
+    (a hit does not depend on what else is cast with it: the same as one cast of all)."""
     static = site.static_shapes()
-    walkers = slice(static.circles.shape[0], None)
+    n_static = static.circles.shape[0]
+    walkers = slice(n_static, None)
     pose = scan.pose
     if inside_any_circle(pose.x_m, pose.y_m, scan.shapes.circles[walkers]):
         return scan.blind()
@@ -182,15 +198,12 @@ def _cast_with_cache(cache: RayCache, site: Site, scan: _Scan, key: tuple[float,
     def cast_static() -> RayHits:
         if inside_static:
             return scan.blind()
-        circles = slice(static.circles.shape[0])
-        return nearest_hits_seen(scan.terms(), scan.directions(), scan.max_range_m, circles)
+        return scan.cast(scan.directions(), circles=slice(n_static))
 
     hits = cache.static_hits(static, key, cast_static)
-    if scan.shapes.circles.shape[0] > static.circles.shape[0] and not inside_static:
-        n_static = static.segments.shape[0] + static.circles.shape[0]
-        hits = with_walkers(
-            hits, scan.terms(), scan.directions(), scan.max_range_m, walkers, n_static
-        )
+    if scan.shapes.circles.shape[0] > n_static and not inside_static:
+        walking = scan.cast(scan.directions(), segments=False, circles=walkers)
+        hits = nearer_of(hits, walking, static.segments.shape[0] + n_static)
     return hits
 
 
@@ -229,7 +242,7 @@ def render_scan(
     elif inside_any_circle(pose.x_m, pose.y_m, shapes.circles):
         hits = scan.blind()
     else:
-        hits = nearest_hits_seen(scan.terms(), scan.directions(), max_range_m)
+        hits = scan.cast(scan.directions())
     # What each shape number's surface remits, the last entry (index -1: none) 0.
     table = np.concatenate([shapes.segment_remission, shapes.circle_remission, _NO_REMISSION])
     ranges, remission = echoes(
@@ -237,7 +250,7 @@ def render_scan(
         table.take(hits.hit_index),
         errors,
         shapes.segments.shape[0],
-        scan.terms,
+        scan.cast,
         table,
         scan.angles_rad,
         step_rad,

@@ -82,7 +82,15 @@ found = extract_features(ranges, angles, Pose2D(0.1, 0.2, 0.3))
 assert len(found.circles) == 1 and len(found.lines) >= 1
 out.append([[f.r_m, f.alpha_rad, *f.covariance.ravel().tolist()] for f in found.lines])
 out.append([[f.cx_m, f.cy_m, f.rms_m] for f in found.circles])
-out.append(sorted(found.rejections.items()))
+rejections = sorted(found.rejections.items())
+from appliance.sim import load_site, render_scan
+from appliance.sim.scanner_errors import draw_scanner_errors
+for pose in ((-9.0, 0.4, 0.1), (-3.0, -1.0, -0.3)):  # the simulator's cast and echo kernels
+    scan, remission = render_scan(load_site("launcher"), 2.0, pose, (2.6, 1.1, 0.8),
+                                  rng=np.random.default_rng(1),
+                                  errors=draw_scanner_errors(5, 0, True))
+    out.append([scan.tolist(), remission.tolist()])
+out.append(rejections)
 print(json.dumps(out))
 """
 

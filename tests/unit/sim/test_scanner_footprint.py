@@ -15,8 +15,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from appliance.sim import load_site, render_scan, scanner_footprint, scanner_model
-from appliance.sim.raycast import NO_HIT, RayHits, nearer_of, nearest_hits_along
-from appliance.sim.raycast_scan import ShapeTerms
+from appliance.sim.raycast import NO_HIT, RayHits
 from appliance.sim.scanner_errors import (
     BeamFootprint,
     ScannerErrors,
@@ -25,6 +24,8 @@ from appliance.sim.scanner_errors import (
 )
 from appliance.sim.scanner_footprint import JUNCTION_STEP_M, footprint_beams
 from appliance.sim.scanner_model import RayCache
+
+from .plain_cast import plain_cast, plain_first_strong_echo
 
 
 def _footprint_beams_reference(
@@ -45,34 +46,6 @@ def _footprint_beams_reference(
         near[np.maximum(edges - k, 0)] = True
         near[np.minimum(edges + 1 + k, count - 1)] = True
     return np.flatnonzero(near)
-
-
-def _first_strong_echo_reference(
-    ranges_m: np.ndarray, energy: np.ndarray, pulse_merge_m: float, min_energy: float
-) -> tuple[np.ndarray, np.ndarray]:
-    beams, returns = ranges_m.shape
-    hit = ranges_m > 0.0
-    far = np.where(hit, ranges_m, 1e9)
-    row_starts = returns * np.arange(beams)
-    flat_order = (np.argsort(far, axis=1) + row_starts[:, None]).ravel()
-    sorted_m = far.ravel()[flat_order]
-    sorted_energy = np.where(hit, energy, 0.0).ravel()[flat_order]
-    starts = np.empty(beams * returns, dtype=np.bool_)
-    np.greater(sorted_m[1:] - sorted_m[:-1], pulse_merge_m, out=starts[1:])
-    starts[row_starts] = True
-    echo = np.cumsum(starts) - 1
-    echo += row_starts.repeat(returns) - echo[row_starts].repeat(returns)
-    size = beams * returns
-    echo_energy = np.bincount(echo, sorted_energy, size).reshape(beams, returns)
-    moment = np.bincount(echo, sorted_energy * sorted_m, size).reshape(beams, returns)
-    strong = echo_energy >= min_energy if min_energy > 0.0 else echo_energy > 0.0
-    first = np.argmax(strong, axis=1)
-    rows = np.arange(beams)
-    found = strong[rows, first]
-    found_energy = np.where(found, echo_energy[rows, first], 0.0)
-    found_m = moment[rows, first] / np.where(found, found_energy, 1.0)
-    found_m[~found] = 0.0
-    return found_m, found_energy
 
 
 @settings(max_examples=200, deadline=None, derandomize=True)
@@ -109,34 +82,9 @@ def test_first_strong_echo_as_the_plain_code(seed: int, beams: int, returns: int
     energy = rng.uniform(0.0, 1e-3, (beams, returns))
     for min_energy in (0.0, 3e-4):
         got = first_strong_echo(ranges, energy, 0.6, min_energy)
-        expected = _first_strong_echo_reference(ranges, energy, 0.6, min_energy)
+        expected = plain_first_strong_echo(ranges, energy, 0.6, min_energy)
         for a, b in zip(got, expected, strict=True):
             assert a.tobytes() == b.tobytes()
-
-
-def _plain_cast(
-    terms: ShapeTerms,
-    directions: np.ndarray,
-    max_range_m: float,
-    circles: slice = slice(None),
-    segments: bool = True,
-) -> RayHits:
-    segs = terms.segs if segments else terms.segs[:0]
-    return nearest_hits_along(
-        terms.ox, terms.oy, directions, segs, terms.circs[circles], max_range_m
-    )
-
-
-def _plain_walkers(
-    hits: RayHits,
-    terms: ShapeTerms,
-    directions: np.ndarray,
-    max_range_m: float,
-    walkers: slice,
-    first_number: int,
-) -> RayHits:
-    walking = _plain_cast(terms, directions, max_range_m, walkers, segments=False)
-    return nearer_of(hits, walking, first_number)
 
 
 @pytest.mark.parametrize("cached", [False, True])
@@ -144,8 +92,9 @@ def _plain_walkers(
 def test_render_scan_as_with_the_plain_casts(
     cached: bool, errors: ScannerErrors, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    """The scanner's casts against `raycast`'s plain ones, on the launcher from poses all
-    over it, with its walker (and a scanner at rest, the static site's hits cached)."""
+    """The scanner's compiled casts and echoes against the plain array code's, on the
+    launcher from poses all over it, with its walker (and a scanner at rest, the static
+    site's hits cached)."""
     site = load_site("launcher")
     rng = np.random.default_rng(7)
     poses = [
@@ -169,9 +118,8 @@ def test_render_scan_as_with_the_plain_casts(
         ]
 
     fast = scans()
-    monkeypatch.setattr(scanner_model, "nearest_hits_seen", _plain_cast)
-    monkeypatch.setattr(scanner_footprint, "nearest_hits_seen", _plain_cast)
-    monkeypatch.setattr(scanner_model, "with_walkers", _plain_walkers)
+    monkeypatch.setattr(scanner_model, "nearest_hits_along", plain_cast)
+    monkeypatch.setattr(scanner_footprint, "first_strong_echo", plain_first_strong_echo)
     plain = scans()
     for (ranges, remission), (plain_ranges, plain_remission) in zip(fast, plain, strict=True):
         assert ranges.tobytes() == plain_ranges.tobytes()
