@@ -87,7 +87,9 @@ def report(name: str, results: list[DockResult]) -> None:
     failures: dict[str, int] = {}
     for r in results:
         if not r.success:
-            failures[r.reason] = failures.get(r.reason, 0) + 1
+            # The controller's own "docked", with a tooth at a trough or outside its gap.
+            reason = "stopped as docked, the teeth not in" if r.reason == "docked" else r.reason
+            failures[reason] = failures.get(reason, 0) + 1
     if failures:
         print(f"  not docked: {failures}")
     for label, values in (

@@ -99,8 +99,7 @@ class RayCache:
     vehicle's CPU. Only the static shapes are kept (keyed on the exact scanner pose and
     beam layout): walkers are cast for every scan and the nearer hit taken per beam,
     and noise is drawn for every scan as before, so a scan with the cache equals one
-    without (to the last bits of floating point, which a differently sized product may
-    round differently).
+    without, to the last bit (a beam's hit does not depend on what else is cast).
     """
 
     def __init__(self) -> None:
