@@ -132,7 +132,8 @@ def residual_figures(q: FloatArray, weights: FloatArray, r_m: float, alpha_rad: 
 
 @kernel(IN_1D, IN_1D, F64)
 def split_mask(xs: FloatArray, ys: FloatArray, split_distance_m: float) -> npt.NDArray[np.bool_]:
-    """`split_breakpoints` as a mask over the points."""
+    """Iterative end-point fit: the points the chords broke at, the first and the last
+    point included, as a mask over the points."""
     n = xs.shape[0]
     breaks = np.zeros(n, dtype=np.bool_)
     if n == 0:

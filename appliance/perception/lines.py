@@ -85,14 +85,6 @@ class LineParams:
             raise ValueError(f"max_iterations must be >= 1, got {self.max_iterations}")
 
 
-def split_breakpoints(xy_m: FloatArray, split_distance_m: float) -> list[int]:
-    """Iterative end-point fit: sorted indices of the points the chords broke at,
-    the first and the last point included."""
-    xs, ys = np.ascontiguousarray(xy_m[:, 0]), np.ascontiguousarray(xy_m[:, 1])
-    breaks: list[int] = np.flatnonzero(line_kernels.split_mask(xs, ys, split_distance_m)).tolist()
-    return breaks
-
-
 def _rows(array: FloatArray, indices: IndexArray) -> FloatArray:
     """``array[indices]``, as a view when the indices are a run (the usual piece)."""
     first, last = int(indices[0]), int(indices[-1])
